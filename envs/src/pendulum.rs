@@ -1,0 +1,171 @@
+//! Gymnasium's `Pendulum-v1`, ported exactly (g = 10, m = 1, l = 1, dt = 0.05, max speed 8,
+//! max torque 2). Torque = 2 · action. The 200-step limit is a truncation: the task never terminates.
+
+use crate::{Env, EnvSpec, Step};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use std::f64::consts::PI;
+
+const G: f64 = 10.0;
+const M: f64 = 1.0;
+const L: f64 = 1.0;
+const DT: f64 = 0.05;
+const MAX_SPEED: f64 = 8.0;
+const MAX_TORQUE: f64 = 2.0;
+
+pub struct Pendulum {
+    spec: EnvSpec,
+    theta: f64,
+    theta_dot: f64,
+    t: usize,
+    rng: Pcg64,
+}
+
+impl Default for Pendulum {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Pendulum {
+    pub fn new() -> Self {
+        Self {
+            spec: EnvSpec { id: "pendulum", obs_dim: 3, act_dim: 1, max_episode_steps: 200 },
+            theta: 0.0,
+            theta_dot: 0.0,
+            t: 0,
+            rng: Pcg64::seed_from_u64(0),
+        }
+    }
+
+    /// Puts the pendulum in a given physical state (angle, angular velocity) at episode start.
+    pub fn set_state(&mut self, theta: f64, theta_dot: f64) -> Vec<f32> {
+        self.theta = theta;
+        self.theta_dot = theta_dot;
+        self.t = 0;
+        self.obs()
+    }
+
+    pub fn state(&self) -> (f64, f64) {
+        (self.theta, self.theta_dot)
+    }
+
+    fn obs(&self) -> Vec<f32> {
+        vec![self.theta.cos() as f32, self.theta.sin() as f32, self.theta_dot as f32]
+    }
+}
+
+fn angle_normalize(x: f64) -> f64 {
+    (x + PI).rem_euclid(2.0 * PI) - PI
+}
+
+impl Env for Pendulum {
+    fn spec(&self) -> &EnvSpec {
+        &self.spec
+    }
+
+    fn reset(&mut self, seed: Option<u64>) -> Vec<f32> {
+        if let Some(s) = seed {
+            self.rng = Pcg64::seed_from_u64(s);
+        }
+        let theta = self.rng.gen_range(-PI..PI);
+        let theta_dot = self.rng.gen_range(-1.0..1.0);
+        self.set_state(theta, theta_dot)
+    }
+
+    fn step(&mut self, action: &[f32]) -> Step {
+        // Gymnasium clips the float32 torque, then computes in float64.
+        let u = (2.0 * action[0].clamp(-1.0, 1.0)) as f64;
+        let (th, thdot) = (self.theta, self.theta_dot);
+        let cost = angle_normalize(th).powi(2) + 0.1 * thdot.powi(2) + 0.001 * u.powi(2);
+        let new_thdot = (thdot + (3.0 * G / (2.0 * L) * th.sin() + 3.0 / (M * L * L) * u) * DT)
+            .clamp(-MAX_SPEED, MAX_SPEED);
+        self.theta = th + new_thdot * DT;
+        self.theta_dot = new_thdot;
+        self.t += 1;
+        debug_assert!(u.abs() <= MAX_TORQUE);
+        Step {
+            obs: self.obs(),
+            reward: -cost,
+            terminated: false,
+            truncated: self.t >= self.spec.max_episode_steps,
+            success: None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::Value;
+
+    fn golden() -> Vec<Value> {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/golden/pendulum_v1.jsonl");
+        let text = std::fs::read_to_string(path).expect("shared/golden/pendulum_v1.jsonl beside the clone");
+        text.lines().map(|l| serde_json::from_str(l).unwrap()).collect()
+    }
+
+    fn f(v: &Value) -> f64 {
+        v.as_f64().unwrap()
+    }
+
+    fn close(a: f64, b: f64, what: &str) {
+        assert!((a - b).abs() <= 1e-5, "{what}: {a} vs golden {b}");
+    }
+
+    #[test]
+    fn matches_gymnasium_single_steps() {
+        let rows = golden();
+        let steps: Vec<_> = rows.iter().filter(|r| r["kind"] == "step").collect();
+        assert!(steps.len() >= 100);
+        for r in steps {
+            let mut env = Pendulum::new();
+            env.set_state(f(&r["state"][0]), f(&r["state"][1]));
+            let out = env.step(&[(f(&r["torque"]) / 2.0) as f32]);
+            for d in 0..3 {
+                close(out.obs[d] as f64, f(&r["obs"][d]), "obs");
+            }
+            close(out.reward, f(&r["reward"]), "reward");
+            let (th, thd) = env.state();
+            close(th, f(&r["next_state"][0]), "theta");
+            close(thd, f(&r["next_state"][1]), "theta_dot");
+            assert!(!out.terminated && !out.truncated);
+        }
+    }
+
+    #[test]
+    fn matches_gymnasium_trajectories_and_truncates_at_200() {
+        let rows = golden();
+        let trajs: Vec<_> = rows.iter().filter(|r| r["kind"] == "trajectory").collect();
+        assert!(!trajs.is_empty());
+        for r in trajs {
+            let mut env = Pendulum::new();
+            env.set_state(f(&r["state"][0]), f(&r["state"][1]));
+            let torques = r["torques"].as_array().unwrap();
+            assert_eq!(torques.len(), 200);
+            for (t, u) in torques.iter().enumerate() {
+                let out = env.step(&[(f(u) / 2.0) as f32]);
+                for d in 0..3 {
+                    close(out.obs[d] as f64, f(&r["obs"][t][d]), "trajectory obs");
+                }
+                close(out.reward, f(&r["rewards"][t]), "trajectory reward");
+                assert_eq!(out.truncated, t == 199, "truncation at step {t}");
+                assert!(!out.terminated);
+            }
+        }
+    }
+
+    #[test]
+    fn same_seed_same_episode() {
+        let run = |seed| {
+            let mut env = Pendulum::new();
+            let mut obs = env.reset(Some(seed));
+            for i in 0..50 {
+                obs.extend(env.step(&[((i as f32) * 0.37).sin()]).obs);
+            }
+            obs
+        };
+        assert_eq!(run(7), run(7));
+        assert_ne!(run(7), run(8));
+    }
+}
