@@ -1,1 +1,376 @@
-//! placeholder
+//! The messages between the SELKD learner and its actor workers, and the names of the iceoryx2
+//! services that carry them. Types here carry no training logic.
+//!
+//! | service                    | direction        | payload                                   |
+//! |----------------------------|------------------|-------------------------------------------|
+//! | `selkd/<run>/transitions`  | worker → learner | [`TransitionHeader`] + `[f32]` row        |
+//! | `selkd/<run>/reports`      | worker → learner | [`Report`] (hello, evaluation)            |
+//! | `selkd/<run>/weights/<i>`  | learner → worker | [`WeightsHeader`] + `[f32]` actor weights |
+//! | `selkd/<run>/control`      | learner → all    | [`Control`] (run facts, budgets, stop)    |
+//! | `selkd/<run>/ranking`      | learner → all    | [`Ranking`]                               |
+//! | `selkd/<run>/to-learner`   | event            | "something for the learner"               |
+//! | `selkd/<run>/to-workers`   | event            | "something for the workers"               |
+//!
+//! Weights, control and ranking keep a history of one, so a worker that starts late (or restarts)
+//! gets the current ones at once. Transitions are never dropped: the learner's buffer is sized
+//! above what the budgets in [`Control`] let workers have in flight, and overflow is off.
+
+use iceoryx2::prelude::*;
+
+/// Bumped whenever a message layout or meaning changes; checked in the handshake.
+pub const PROTOCOL_VERSION: u32 = 1;
+/// Most actors a run may have (fixed arrays in [`Control`] and [`Ranking`]).
+pub const MAX_ACTORS: usize = 64;
+pub const MAX_HIDDEN_LAYERS: usize = 8;
+/// Transitions the learner's subscriber holds before a publisher would have to wait.
+pub const TRANSITION_BUFFER: usize = 16_384;
+
+/// A short fixed-size name (env id), zero-padded UTF-8.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("selkd::Name")]
+pub struct Name(pub [u8; 32]);
+
+impl Name {
+    pub fn new(s: &str) -> Self {
+        let mut b = [0u8; 32];
+        let n = s.len().min(32);
+        b[..n].copy_from_slice(&s.as_bytes()[..n]);
+        Name(b)
+    }
+    pub fn as_str(&self) -> &str {
+        let end = self.0.iter().position(|&c| c == 0).unwrap_or(32);
+        std::str::from_utf8(&self.0[..end]).unwrap_or("<invalid>")
+    }
+}
+
+impl Default for Name {
+    fn default() -> Self {
+        Name([0; 32])
+    }
+}
+
+/// One transition `(s, a, r, s', terminated, truncated)`. The `[f32]` payload is the row
+/// `s (obs) | a (act) | r | s' (obs) | terminated | truncated`, see [`TransitionRow`].
+#[derive(Debug, Default, Clone, Copy, ZeroCopySend)]
+#[repr(C)]
+#[type_name("selkd::TransitionHeader")]
+pub struct TransitionHeader {
+    pub worker: u32,
+    /// How many times this worker was (re)started before this process.
+    pub generation: u32,
+    pub episode: u64,
+    /// Index of this step within its episode.
+    pub step: u64,
+    /// Weights version of the behaviour policy that chose `a` (0 = warm-up random action).
+    pub policy_version: u64,
+    pub obs_dim: u32,
+    pub act_dim: u32,
+    /// The episode's undiscounted return when this transition ends it, else NaN.
+    pub episode_return: f64,
+}
+
+/// Offsets into a transition row.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TransitionRow {
+    pub obs_dim: usize,
+    pub act_dim: usize,
+}
+
+impl TransitionRow {
+    pub fn len(&self) -> usize {
+        2 * self.obs_dim + self.act_dim + 3
+    }
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+    pub fn write(&self, out: &mut Vec<f32>, s: &[f32], a: &[f32], r: f32, s2: &[f32], terminated: bool, truncated: bool) {
+        out.clear();
+        out.extend_from_slice(s);
+        out.extend_from_slice(a);
+        out.push(r);
+        out.extend_from_slice(s2);
+        out.push(terminated as u8 as f32);
+        out.push(truncated as u8 as f32);
+    }
+    /// `(s, a, r, s', terminated, truncated)` views into a row of the right length.
+    pub fn split<'a>(&self, row: &'a [f32]) -> (&'a [f32], &'a [f32], f32, &'a [f32], bool, bool) {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        (&row[..o], &row[o..o + a], row[o + a], &row[o + a + 1..2 * o + a + 1], row[2 * o + a + 1] != 0.0, row[2 * o + a + 2] != 0.0)
+    }
+}
+
+/// Header of an actor's weights (flat `f32`, `selkd_policy` layout).
+#[derive(Debug, Default, Clone, Copy, ZeroCopySend)]
+#[repr(C)]
+#[type_name("selkd::WeightsHeader")]
+pub struct WeightsHeader {
+    pub actor: u32,
+    pub version: u64,
+}
+
+/// What a worker reports besides transitions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("selkd::ReportKind")]
+pub enum ReportKind {
+    /// A worker (re)joined: the handshake's worker side.
+    Hello = 0,
+    /// The evaluation episodes of one epoch are done.
+    Evaluation = 1,
+}
+
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[repr(C)]
+#[type_name("selkd::Report")]
+pub struct Report {
+    pub kind: ReportKind,
+    pub worker: u32,
+    pub generation: u32,
+    pub protocol_version: u32,
+    pub env: Name,
+    pub obs_dim: u32,
+    pub act_dim: u32,
+    /// Weights version the worker holds (hello) or evaluated (evaluation).
+    pub weights_version: u64,
+    /// Evaluation epoch (1-based), 0 for hello.
+    pub epoch: u64,
+    pub episodes: u32,
+    /// Mean undiscounted return of the evaluation episodes.
+    pub mean_return: f64,
+    /// Fraction of successful episodes, or NaN where the task has no success.
+    pub success_rate: f64,
+}
+
+/// The learner's standing orders, one for all workers (history 1: latecomers read it at once).
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[repr(C)]
+#[type_name("selkd::Control")]
+pub struct Control {
+    pub protocol_version: u32,
+    pub actors: u32,
+    pub env: Name,
+    pub obs_dim: u32,
+    pub act_dim: u32,
+    pub seed: u64,
+    /// Hidden layer sizes of the actor network (first `hidden_layers` entries).
+    pub hidden: [u32; MAX_HIDDEN_LAYERS],
+    pub hidden_layers: u32,
+    /// Per actor: uniform-random warm-up steps before the policy acts.
+    pub warmup_steps: u64,
+    /// Most recent weights version published for every actor.
+    pub weights_version: u64,
+    /// A worker must not act with weights older than `weights_version − max_policy_lag`.
+    pub max_policy_lag: u64,
+    /// Evaluate once for every epoch up to this one (0 = none yet).
+    pub eval_epoch: u64,
+    pub eval_episodes: u32,
+    pub stop: u32,
+    /// Per actor: transitions the learner has received so far.
+    pub received: [u64; MAX_ACTORS],
+    /// Per actor: a worker may send transitions while its count is below this.
+    pub budget: [u64; MAX_ACTORS],
+}
+
+/// Every actor's Monte-Carlo score and the best one (ties to the lower index).
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[repr(C)]
+#[type_name("selkd::Ranking")]
+pub struct Ranking {
+    pub version: u64,
+    pub actors: u32,
+    pub best: u32,
+    /// NaN where an actor has no score yet.
+    pub scores: [f64; MAX_ACTORS],
+}
+
+/// Service names of one run. The run id keeps two runs on one host apart.
+#[derive(Debug, Clone)]
+pub struct Services {
+    pub run_id: String,
+}
+
+impl Services {
+    pub fn new(run_id: &str) -> Self {
+        Self { run_id: run_id.to_string() }
+    }
+    fn name(&self, what: &str) -> Result<ServiceName, ProtocolError> {
+        let s = format!("selkd/{}/{}", self.run_id, what);
+        ServiceName::new(&s).map_err(|e| ProtocolError::Name(s, format!("{e:?}")))
+    }
+    pub fn transitions(&self) -> Result<ServiceName, ProtocolError> {
+        self.name("transitions")
+    }
+    pub fn reports(&self) -> Result<ServiceName, ProtocolError> {
+        self.name("reports")
+    }
+    pub fn weights(&self, actor: usize) -> Result<ServiceName, ProtocolError> {
+        self.name(&format!("weights/{actor}"))
+    }
+    pub fn control(&self) -> Result<ServiceName, ProtocolError> {
+        self.name("control")
+    }
+    pub fn ranking(&self) -> Result<ServiceName, ProtocolError> {
+        self.name("ranking")
+    }
+    pub fn to_learner(&self) -> Result<ServiceName, ProtocolError> {
+        self.name("to-learner")
+    }
+    pub fn to_workers(&self) -> Result<ServiceName, ProtocolError> {
+        self.name("to-workers")
+    }
+}
+
+/// Room for restarted workers overlapping their dead predecessors until cleanup.
+pub fn max_ports(actors: usize) -> usize {
+    2 * actors + 4
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ProtocolError {
+    #[error("invalid service name `{0}`: {1}; run ids may use letters, digits, '-' and '_'")]
+    Name(String, String),
+    #[error(
+        "this worker does not fit the run: learner has protocol v{lp}, env `{le}`, obs {lo}, act {la}; \
+         worker has protocol v{wp}, env `{we}`, obs {wo}, act {wa}. Start the worker with the run's env and the same selkd build"
+    )]
+    Mismatch { lp: u32, le: String, lo: u32, la: u32, wp: u32, we: String, wo: u32, wa: u32 },
+}
+
+/// The worker side of the handshake: does this worker fit the run the learner announced?
+pub fn check_peer(control: &Control, env: &str, obs_dim: usize, act_dim: usize) -> Result<(), ProtocolError> {
+    if control.protocol_version == PROTOCOL_VERSION && control.env.as_str() == env && control.obs_dim as usize == obs_dim && control.act_dim as usize == act_dim {
+        return Ok(());
+    }
+    Err(ProtocolError::Mismatch {
+        lp: control.protocol_version,
+        le: control.env.as_str().to_string(),
+        lo: control.obs_dim,
+        la: control.act_dim,
+        wp: PROTOCOL_VERSION,
+        we: env.to_string(),
+        wo: obs_dim as u32,
+        wa: act_dim as u32,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn control() -> Control {
+        Control {
+            protocol_version: PROTOCOL_VERSION,
+            actors: 2,
+            env: Name::new("pendulum"),
+            obs_dim: 3,
+            act_dim: 1,
+            seed: 0,
+            hidden: [0; MAX_HIDDEN_LAYERS],
+            hidden_layers: 0,
+            warmup_steps: 0,
+            weights_version: 0,
+            max_policy_lag: 1,
+            eval_epoch: 0,
+            eval_episodes: 1,
+            stop: 0,
+            received: [0; MAX_ACTORS],
+            budget: [0; MAX_ACTORS],
+        }
+    }
+
+    #[test]
+    fn handshake_accepts_a_match_and_names_both_sides_of_a_mismatch() {
+        assert!(check_peer(&control(), "pendulum", 3, 1).is_ok());
+        let e = check_peer(&control(), "hopper", 11, 3).unwrap_err().to_string();
+        assert!(e.contains("`pendulum`, obs 3, act 1") && e.contains("`hopper`, obs 11, act 3"), "{e}");
+    }
+
+    #[test]
+    fn rows_round_trip() {
+        let row = TransitionRow { obs_dim: 2, act_dim: 1 };
+        let mut v = Vec::new();
+        row.write(&mut v, &[1.0, 2.0], &[0.5], -3.0, &[4.0, 5.0], true, false);
+        assert_eq!(v.len(), row.len());
+        assert_eq!(row.split(&v), (&[1.0, 2.0][..], &[0.5][..], -3.0, &[4.0, 5.0][..], true, false));
+        assert_eq!(Name::new("pendulum").as_str(), "pendulum");
+    }
+}
+
+/// Opening the run's services with the same settings on both sides (iceoryx2 checks they agree).
+pub mod services {
+    use super::*;
+    use iceoryx2::service::port_factory::{event, publish_subscribe};
+
+    pub type Node = iceoryx2::node::Node<ipc::Service>;
+    pub type PubSub<P, H = ()> = publish_subscribe::PortFactory<ipc::Service, P, H>;
+    pub type Event = event::PortFactory<ipc::Service>;
+    pub type Error = Box<dyn std::error::Error + Send + Sync>;
+
+    /// A node that leaves signals to the process (the launcher manages them).
+    pub fn node(name: &str) -> Result<Node, Error> {
+        Ok(NodeBuilder::new()
+            .name(&NodeName::new(name)?)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()?)
+    }
+
+    pub fn transitions(node: &Node, s: &Services, actors: usize) -> Result<PubSub<[f32], TransitionHeader>, Error> {
+        Ok(node
+            .service_builder(&s.transitions()?)
+            .publish_subscribe::<[f32]>()
+            .user_header::<TransitionHeader>()
+            .max_publishers(max_ports(actors))
+            .max_subscribers(2)
+            .subscriber_max_buffer_size(TRANSITION_BUFFER)
+            .history_size(0)
+            .enable_safe_overflow(false)
+            .open_or_create()?)
+    }
+
+    pub fn reports(node: &Node, s: &Services, actors: usize) -> Result<PubSub<Report>, Error> {
+        Ok(node
+            .service_builder(&s.reports()?)
+            .publish_subscribe::<Report>()
+            .max_publishers(max_ports(actors))
+            .max_subscribers(2)
+            .subscriber_max_buffer_size(4 * MAX_ACTORS)
+            .history_size(0)
+            .enable_safe_overflow(false)
+            .open_or_create()?)
+    }
+
+    /// "Latest value" services: history 1, and a slow reader only ever misses stale values.
+    macro_rules! latest {
+        ($node:expr, $name:expr, $payload:ty) => {
+            $node
+                .service_builder(&$name)
+                .publish_subscribe::<$payload>()
+                .max_publishers(2)
+                .max_subscribers(MAX_ACTORS * 2 + 4)
+                .history_size(1)
+                .subscriber_max_buffer_size(1)
+                .enable_safe_overflow(true)
+        };
+    }
+
+    pub fn weights(node: &Node, s: &Services, actor: usize) -> Result<PubSub<[f32], WeightsHeader>, Error> {
+        Ok(latest!(node, s.weights(actor)?, [f32]).user_header::<WeightsHeader>().open_or_create()?)
+    }
+
+    pub fn control(node: &Node, s: &Services) -> Result<PubSub<Control>, Error> {
+        Ok(latest!(node, s.control()?, Control).open_or_create()?)
+    }
+
+    pub fn ranking(node: &Node, s: &Services) -> Result<PubSub<Ranking>, Error> {
+        Ok(latest!(node, s.ranking()?, Ranking).open_or_create()?)
+    }
+
+    pub fn to_learner(node: &Node, s: &Services, actors: usize) -> Result<Event, Error> {
+        Ok(node.service_builder(&s.to_learner()?).event().max_notifiers(max_ports(actors) + 2).max_listeners(2).open_or_create()?)
+    }
+
+    pub fn to_workers(node: &Node, s: &Services) -> Result<Event, Error> {
+        Ok(node.service_builder(&s.to_workers()?).event().max_notifiers(2).max_listeners(MAX_ACTORS * 2 + 4).open_or_create()?)
+    }
+}

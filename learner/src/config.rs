@@ -1,0 +1,333 @@
+//! The run configuration: data (TOML), validated once at the edge with errors that say what to change.
+
+use crate::targets::Formation;
+use serde::{Deserialize, Serialize};
+
+/// Everything a run needs, as written in a config file. Sections mirror the keys users `--set`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    pub run: RunConfig,
+    pub algo: AlgoConfig,
+    pub eval: EvalConfig,
+    #[serde(rename = "async")]
+    pub asynchronous: AsyncConfig,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunConfig {
+    /// Registry name of the environment.
+    pub env: String,
+    pub seed: u64,
+    /// Budget: transitions from all actors together.
+    pub total_env_steps: u64,
+    pub mode: Mode,
+    /// `cpu` or `cuda` (or `cuda:N`), for the learner.
+    pub device: String,
+    /// Threads the learner's libtorch may use (0 = libtorch's default).
+    pub threads: usize,
+    /// Write a checkpoint every this many env steps (0 = only at the end).
+    pub checkpoint_every: u64,
+    /// Include the replay buffer in checkpoints (large; lets a resumed run continue exactly).
+    pub checkpoint_replay: bool,
+}
+
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum Mode {
+    /// Algorithm 1's lockstep rounds; reproducible on CPU with fixed seeds.
+    Sync,
+    /// Workers step freely; the learner holds the update-to-insert ratio at G per K transitions.
+    Async,
+}
+
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum Sharing {
+    /// One mini-batch and one critic subset per update, all N critics trained on the same y (REDQ).
+    PerUpdate,
+    /// Algorithm 1 as printed: a mini-batch and subset for each critic (N× the target rows).
+    PerCritic,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct AlgoConfig {
+    /// K actors.
+    pub actors: usize,
+    /// N critics.
+    pub critics: usize,
+    /// M: size of the random critic subset in the target.
+    pub subset: usize,
+    /// G: critic updates per round (per K transitions).
+    pub utd: usize,
+    pub batch_size: usize,
+    pub hidden: Vec<usize>,
+    pub lr: f64,
+    pub gamma: f64,
+    /// ρ in `Q̄ ← ρ Q̄ + (1 − ρ) Q`.
+    pub polyak: f64,
+    pub replay_capacity: usize,
+    /// Uniform-random transitions (all actors together) before the first update.
+    pub warmup_steps: u64,
+    pub target: Formation,
+    pub sharing: Sharing,
+    /// λ_KD, weight of the distillation term.
+    pub kd_weight: f64,
+    /// Fixed temperature; when absent, each actor's α is tuned automatically.
+    pub fixed_alpha: Option<f64>,
+    pub alpha_lr: f64,
+    /// Target entropy for the automatic temperature; default −|A|.
+    pub target_entropy: Option<f64>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalConfig {
+    /// An epoch: this many env steps (all actors together) between evaluations.
+    pub epoch_env_steps: u64,
+    /// Deterministic evaluation episodes per actor per epoch.
+    pub episodes: usize,
+    /// Before the first evaluation, an actor's score is the mean of this many latest training episodes.
+    pub score_window: usize,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct AsyncConfig {
+    /// How far (in critic updates) the update count may run ahead of or behind G/K per transition
+    /// before the side that is ahead waits.
+    pub ratio_tolerance: f64,
+    /// Most learner weight versions a worker's behaviour policy may lag behind.
+    pub max_policy_lag: u64,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self { run: RunConfig::default(), algo: AlgoConfig::default(), eval: EvalConfig::default(), asynchronous: AsyncConfig::default() }
+    }
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        Self {
+            env: "pendulum".into(),
+            seed: 1,
+            total_env_steps: 300_000,
+            mode: Mode::Sync,
+            device: "cpu".into(),
+            threads: 0,
+            checkpoint_every: 50_000,
+            checkpoint_replay: false,
+        }
+    }
+}
+
+/// Paper Table 1.
+impl Default for AlgoConfig {
+    fn default() -> Self {
+        Self {
+            actors: 5,
+            critics: 10,
+            subset: 2,
+            utd: 20,
+            batch_size: 256,
+            hidden: vec![256, 256],
+            lr: 3e-4,
+            gamma: 0.99,
+            polyak: 0.995,
+            replay_capacity: 100_000,
+            warmup_steps: 5000,
+            target: Formation::MaxMin,
+            sharing: Sharing::PerUpdate,
+            kd_weight: 1.0,
+            fixed_alpha: None,
+            alpha_lr: 3e-4,
+            target_entropy: None,
+        }
+    }
+}
+
+impl Default for EvalConfig {
+    fn default() -> Self {
+        Self { epoch_env_steps: 1000, episodes: 10, score_window: 10 }
+    }
+}
+
+impl Default for AsyncConfig {
+    fn default() -> Self {
+        Self { ratio_tolerance: 100.0, max_policy_lag: 4 }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("config: {0}")]
+    Invalid(String),
+    #[error("config: cannot parse: {0}")]
+    Parse(String),
+}
+
+impl Config {
+    /// Parses TOML text, then applies `key=value` overrides (`algo.critics=4`), then validates.
+    pub fn from_toml_with_overrides(text: &str, overrides: &[String]) -> Result<Self, ConfigError> {
+        let mut value: toml::Table = toml::from_str(text).map_err(|e| ConfigError::Parse(one_line(&e.to_string())))?;
+        for o in overrides {
+            apply_override(&mut value, o)?;
+        }
+        let cfg: Config = toml::Value::Table(value).try_into().map_err(|e: toml::de::Error| ConfigError::Parse(one_line(&e.to_string())))?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("config serialises")
+    }
+
+    /// Checks every value and every combination once, with a message that says what to change.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let a = &self.algo;
+        let bad = |m: String| Err(ConfigError::Invalid(m));
+        if selkd_envs::spec(&self.run.env).is_err() {
+            return bad(format!("run.env = \"{}\" is not a known env; choose one of: {}", self.run.env, selkd_envs::names().join(", ")));
+        }
+        if a.actors == 0 {
+            return bad("algo.actors (K) must be at least 1".into());
+        }
+        if a.critics == 0 {
+            return bad("algo.critics (N) must be at least 1".into());
+        }
+        if a.subset == 0 || a.subset > a.critics {
+            return bad(format!("algo.subset (M = {}) must be between 1 and algo.critics (N = {})", a.subset, a.critics));
+        }
+        if a.utd == 0 || a.batch_size == 0 || a.replay_capacity == 0 {
+            return bad("algo.utd, algo.batch_size and algo.replay_capacity must be at least 1".into());
+        }
+        if a.hidden.is_empty() || a.hidden.contains(&0) {
+            return bad(format!("algo.hidden = {:?} needs at least one layer, each of size ≥ 1", a.hidden));
+        }
+        if !(a.lr > 0.0 && a.lr.is_finite() && a.alpha_lr > 0.0 && a.alpha_lr.is_finite()) {
+            return bad("algo.lr and algo.alpha_lr must be positive numbers".into());
+        }
+        if !(0.0..=1.0).contains(&a.gamma) {
+            return bad(format!("algo.gamma = {} must be in [0, 1]", a.gamma));
+        }
+        if !(0.0..1.0).contains(&a.polyak) {
+            return bad(format!("algo.polyak (ρ) = {} must be in [0, 1)", a.polyak));
+        }
+        if !(a.kd_weight >= 0.0 && a.kd_weight.is_finite()) {
+            return bad(format!("algo.kd_weight = {} must be ≥ 0", a.kd_weight));
+        }
+        if let Some(alpha) = a.fixed_alpha {
+            if !(alpha >= 0.0 && alpha.is_finite()) {
+                return bad(format!("algo.fixed_alpha = {alpha} must be ≥ 0 (or leave it out for automatic tuning)"));
+            }
+        }
+        if a.warmup_steps < a.batch_size as u64 {
+            return bad(format!("algo.warmup_steps ({}) must be at least algo.batch_size ({}) so the first batch can be drawn", a.warmup_steps, a.batch_size));
+        }
+        if self.run.total_env_steps == 0 {
+            return bad("run.total_env_steps must be at least 1".into());
+        }
+        if self.eval.epoch_env_steps == 0 || self.eval.episodes == 0 || self.eval.score_window == 0 {
+            return bad("eval.epoch_env_steps, eval.episodes and eval.score_window must be at least 1".into());
+        }
+        if self.eval.epoch_env_steps % a.actors as u64 != 0 {
+            return bad(format!("eval.epoch_env_steps ({}) must be a multiple of algo.actors ({}) so every actor evaluates at the same round", self.eval.epoch_env_steps, a.actors));
+        }
+        let dev = self.run.device.as_str();
+        if !(dev == "cpu" || dev == "cuda" || dev.strip_prefix("cuda:").is_some_and(|n| n.parse::<usize>().is_ok())) {
+            return bad(format!("run.device = \"{dev}\" must be cpu, cuda or cuda:N"));
+        }
+        if !(self.asynchronous.ratio_tolerance >= 1.0) {
+            return bad("async.ratio_tolerance must be at least 1 (critic updates)".into());
+        }
+        if self.asynchronous.max_policy_lag == 0 {
+            return bad("async.max_policy_lag must be at least 1".into());
+        }
+        Ok(())
+    }
+
+    pub fn warmup_per_actor(&self) -> u64 {
+        self.algo.warmup_steps.div_ceil(self.algo.actors as u64)
+    }
+
+    pub fn steps_per_actor(&self) -> u64 {
+        self.run.total_env_steps.div_ceil(self.algo.actors as u64)
+    }
+
+    pub fn epoch_per_actor(&self) -> u64 {
+        self.eval.epoch_env_steps / self.algo.actors as u64
+    }
+}
+
+fn one_line(s: &str) -> String {
+    s.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+/// `section.key=value`; the value is read as TOML (number, bool, array) or else as a string.
+fn apply_override(table: &mut toml::Table, item: &str) -> Result<(), ConfigError> {
+    let (key, raw) = item
+        .split_once('=')
+        .ok_or_else(|| ConfigError::Invalid(format!("--set {item}: expected key=value, e.g. --set algo.critics=4")))?;
+    let value: toml::Value = toml::from_str::<toml::Table>(&format!("v = {raw}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(raw.to_string()));
+    let parts: Vec<&str> = key.trim().split('.').collect();
+    let (last, path) = parts.split_last().unwrap();
+    let mut cur = table;
+    for p in path {
+        cur = cur
+            .entry(p.to_string())
+            .or_insert_with(|| toml::Value::Table(Default::default()))
+            .as_table_mut()
+            .ok_or_else(|| ConfigError::Invalid(format!("--set {item}: `{p}` is not a section")))?;
+    }
+    cur.insert(last.to_string(), value);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn err(text: &str, sets: &[&str]) -> String {
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        Config::from_toml_with_overrides(text, &sets).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn defaults_are_the_papers_table_1_and_valid() {
+        let c = Config::from_toml_with_overrides("", &[]).unwrap();
+        assert_eq!((c.algo.actors, c.algo.critics, c.algo.subset, c.algo.utd, c.algo.batch_size), (5, 10, 2, 20, 256));
+        assert_eq!((c.algo.lr, c.algo.gamma, c.algo.polyak, c.algo.replay_capacity), (3e-4, 0.99, 0.995, 100_000));
+        let back = Config::from_toml_with_overrides(&c.to_toml(), &[]).unwrap();
+        assert_eq!(back, c);
+    }
+
+    #[test]
+    fn bad_values_get_one_line_errors_naming_the_key() {
+        assert!(err("", &["algo.subset=11"]).contains("algo.subset"));
+        assert!(err("", &["algo.actors=0"]).contains("algo.actors"));
+        assert!(err("", &["run.env=walker"]).contains("pendulum"));
+        assert!(err("", &["algo.batch_size=-3"]).contains("batch_size"));
+        assert!(err("[algo]\ncritcs = 3\n", &[]).contains("critcs"));
+        assert!(err("", &["algo.target=\"max-mean\""]).contains("max-min"));
+        assert!(err("", &["nonsense"]).contains("key=value"));
+        for e in [err("", &["algo.subset=11"]), err("[algo]\ncritcs = 3\n", &[])] {
+            assert!(!e.contains('\n'), "one line: {e}");
+        }
+    }
+
+    #[test]
+    fn overrides_parse_numbers_lists_and_strings() {
+        let sets = ["algo.hidden=[64, 64]", "run.mode=async", "algo.kd_weight=0.5", "algo.sharing=per-critic"].map(String::from);
+        let c = Config::from_toml_with_overrides("", &sets).unwrap();
+        assert_eq!(c.algo.hidden, vec![64, 64]);
+        assert_eq!(c.run.mode, Mode::Async);
+        assert_eq!(c.algo.kd_weight, 0.5);
+        assert_eq!(c.algo.sharing, Sharing::PerCritic);
+    }
+}

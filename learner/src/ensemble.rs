@@ -1,0 +1,167 @@
+//! Stacked MLP ensembles: E networks of one shape held as weights `[E, in, out]` and biases
+//! `[E, 1, out]`, evaluated for all members at once with batched matmuls.
+
+use rand::Rng;
+use rand_pcg::Pcg64;
+use tch::{Device, Kind, Tensor};
+
+/// One stacked linear layer.
+pub struct StackedLinear {
+    pub weight: Tensor,
+    pub bias: Tensor,
+}
+
+/// E MLPs with ReLU between layers and a linear output.
+pub struct Ensemble {
+    pub layers: Vec<StackedLinear>,
+}
+
+impl Ensemble {
+    /// `dims` = `[in, hidden…, out]`. Weights and biases start as PyTorch's `nn.Linear` does,
+    /// `U(±1/√in)`, drawn from `rng` so that a seed fixes every member.
+    pub fn new(members: usize, dims: &[usize], device: Device, rng: &mut Pcg64) -> Self {
+        let layers = dims
+            .windows(2)
+            .map(|w| {
+                let (n_in, n_out) = (w[0], w[1]);
+                let bound = 1.0 / (n_in as f32).sqrt();
+                let mut draw = |n: usize| -> Vec<f32> { (0..n).map(|_| rng.gen_range(-bound..bound)).collect() };
+                let wv = draw(members * n_in * n_out);
+                let bv = draw(members * n_out);
+                StackedLinear {
+                    weight: param(&wv, &[members, n_in, n_out], device),
+                    bias: param(&bv, &[members, 1, n_out], device),
+                }
+            })
+            .collect();
+        Self { layers }
+    }
+
+    pub fn members(&self) -> i64 {
+        self.layers[0].weight.size()[0]
+    }
+
+    /// `x` is `[E, B, in]`; returns `[E, B, out]`.
+    pub fn forward(&self, x: &Tensor) -> Tensor {
+        let last = self.layers.len() - 1;
+        let mut h = x.shallow_clone();
+        for (l, layer) in self.layers.iter().enumerate() {
+            h = layer.bias.baddbmm(&h, &layer.weight, 1.0, 1.0);
+            if l < last {
+                h = h.relu();
+            }
+        }
+        h
+    }
+
+    /// The same members with gradients cut (for a loss that must not train this ensemble).
+    pub fn detached(&self) -> Ensemble {
+        self.map(|t| t.detach())
+    }
+
+    /// A sub-ensemble of the members at `index` (a 1-D int64 tensor; repeats allowed), no gradient.
+    pub fn select(&self, index: &Tensor) -> Ensemble {
+        self.map(|t| t.detach().index_select(0, index))
+    }
+
+    /// Member `i` alone, as a one-member ensemble without gradient.
+    pub fn member(&self, i: i64) -> Ensemble {
+        self.map(|t| t.detach().narrow(0, i, 1))
+    }
+
+    /// A deep copy with no gradient tracking (e.g. the target critics).
+    pub fn copy(&self) -> Ensemble {
+        self.map(|t| t.detach().copy())
+    }
+
+    fn map(&self, f: impl Fn(&Tensor) -> Tensor) -> Ensemble {
+        Ensemble {
+            layers: self.layers.iter().map(|l| StackedLinear { weight: f(&l.weight), bias: f(&l.bias) }).collect(),
+        }
+    }
+
+    pub fn params(&self) -> Vec<&Tensor> {
+        self.layers.iter().flat_map(|l| [&l.weight, &l.bias]).collect()
+    }
+
+    pub fn named_params(&self, prefix: &str) -> Vec<(String, &Tensor)> {
+        self.layers
+            .iter()
+            .enumerate()
+            .flat_map(|(i, l)| [(format!("{prefix}.{i}.weight"), &l.weight), (format!("{prefix}.{i}.bias"), &l.bias)])
+            .collect()
+    }
+
+    /// Member `i`'s parameters as one flat vector, in `selkd_policy`'s layout
+    /// (each layer's weight `[in][out]` row-major, then its bias).
+    pub fn member_flat(&self, i: i64) -> Vec<f32> {
+        let parts: Vec<Tensor> = self.params().iter().map(|t| t.detach().get(i).reshape([-1])).collect();
+        let flat = Tensor::cat(&parts, 0).to_device(Device::Cpu).to_kind(Kind::Float);
+        Vec::<f32>::try_from(&flat).expect("f32 parameters")
+    }
+
+    /// `self ← ρ·self + (1 − ρ)·online`, member by member (Polyak averaging).
+    pub fn polyak_toward(&mut self, online: &Ensemble, rho: f64) {
+        tch::no_grad(|| {
+            for (t, o) in self.params().into_iter().zip(online.params()) {
+                let mut t = t.shallow_clone();
+                let _ = t.lerp_(o, 1.0 - rho);
+            }
+        });
+    }
+
+    /// Overwrites every parameter with `other`'s values (same shapes).
+    pub fn copy_from(&mut self, other: &Ensemble) {
+        tch::no_grad(|| {
+            for (t, o) in self.params().into_iter().zip(other.params()) {
+                let mut t = t.shallow_clone();
+                t.copy_(o);
+            }
+        });
+    }
+}
+
+fn param(values: &[f32], shape: &[usize], device: Device) -> Tensor {
+    let shape: Vec<i64> = shape.iter().map(|&d| d as i64).collect();
+    Tensor::from_slice(values).view(shape.as_slice()).to_device(device).set_requires_grad(true)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use selkd_policy::{Actor, ActorLayout};
+
+    #[test]
+    fn each_member_is_an_independent_mlp_matching_the_plain_forward() {
+        let mut rng = Pcg64::seed_from_u64(3);
+        let ens = Ensemble::new(3, &[4, 8, 8, 2 * 2], Device::Cpu, &mut rng);
+        let obs: Vec<f32> = vec![0.3, -1.2, 0.7, 2.0];
+        let x = Tensor::from_slice(&obs).view([1, 1, 4]).expand([3, 1, 4], false);
+        let out = ens.forward(&x);
+        for i in 0..3 {
+            let actor = Actor::from_flat(ActorLayout::new(4, 2, &[8, 8]), ens.member_flat(i)).unwrap();
+            let (mu, ls) = actor.mean_log_std(&obs);
+            let row = Vec::<f32>::try_from(out.get(i).reshape([-1])).unwrap();
+            for d in 0..2 {
+                assert!((row[d] - mu[d]).abs() < 1e-5);
+                assert!((row[2 + d].clamp(-20.0, 2.0) - ls[d]).abs() < 1e-5);
+            }
+        }
+    }
+
+    #[test]
+    fn polyak_moves_targets_by_one_minus_rho() {
+        let mut rng = Pcg64::seed_from_u64(4);
+        let online = Ensemble::new(2, &[3, 5, 1], Device::Cpu, &mut rng);
+        let mut target = Ensemble::new(2, &[3, 5, 1], Device::Cpu, &mut rng).copy();
+        let before = target.member_flat(1);
+        target.polyak_toward(&online, 0.995);
+        let after = target.member_flat(1);
+        let on = online.member_flat(1);
+        for k in 0..before.len() {
+            let want = 0.995 * before[k] + 0.005 * on[k];
+            assert!((after[k] - want).abs() < 1e-6);
+        }
+    }
+}
