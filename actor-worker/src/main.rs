@@ -1,1 +1,253 @@
-fn main(){}
+//! `actor-worker`: one SELKD actor. It rolls out its actor's current policy in its own seeded env,
+//! publishes every transition to the learner over iceoryx2, swaps in new weights as they arrive,
+//! and runs the deterministic evaluation episodes the learner asks for. A worker started again
+//! with the same run id and index rejoins the run with the learner's latest weights.
+
+use anyhow::{bail, Context, Result};
+use clap::Parser;
+use iceoryx2::prelude::*;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use selkd_envs::Env;
+use selkd_policy::{Actor, ActorLayout};
+use selkd_protocol::{services, Control, Name, Report, ReportKind, Services, TransitionHeader, TransitionRow, PROTOCOL_VERSION};
+use std::time::{Duration, Instant};
+
+#[derive(Parser, Debug)]
+#[command(version, about = "One SELKD actor: steps its env with its policy and streams transitions to the learner")]
+struct Args {
+    /// Run id shared with the learner (keeps runs on one host apart).
+    #[arg(long)]
+    run_id: String,
+    /// Which actor this worker runs, 0-based.
+    #[arg(long)]
+    worker: usize,
+    /// Env to run; must be the learner's.
+    #[arg(long)]
+    env: String,
+    /// How many earlier processes ran this worker (the launcher counts restarts); varies the seeds.
+    #[arg(long, default_value_t = 0)]
+    generation: u32,
+    /// Give up if no learner answers within this many seconds.
+    #[arg(long, default_value_t = 60.0)]
+    connect_timeout: f64,
+}
+
+/// Exit code for "this worker cannot join this run": the launcher does not restart it.
+const EXIT_MISMATCH: i32 = 2;
+
+fn main() {
+    tracing_subscriber::fmt().with_writer(std::io::stderr).with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into())).init();
+    let args = Args::parse();
+    match run(&args) {
+        Ok(()) => {}
+        Err(e) => {
+            let mismatch = e.downcast_ref::<selkd_protocol::ProtocolError>().is_some();
+            eprintln!("actor-worker {}: error: {e:#}", args.worker);
+            std::process::exit(if mismatch { EXIT_MISMATCH } else { 1 });
+        }
+    }
+}
+
+/// Seeds derived from (run seed, worker, generation, purpose) so every stream differs.
+fn seed_for(seed: u64, worker: usize, generation: u32, purpose: u64) -> u64 {
+    let mut rng = Pcg64::seed_from_u64(seed ^ 0x5e1d_0000_0000_0000);
+    let base: u64 = rng.gen();
+    base ^ ((worker as u64) << 40) ^ ((generation as u64) << 24) ^ purpose.wrapping_mul(0x9e37_79b9_7f4a_7c15)
+}
+
+fn run(args: &Args) -> Result<()> {
+    let mut env = selkd_envs::make(&args.env)?;
+    let spec = env.spec().clone();
+    let node = services::node(&format!("actor-worker-{}", args.worker)).map_err(|e| anyhow::anyhow!("starting iceoryx2 node: {e}"))?;
+    let svc = Services::new(&args.run_id);
+    let ctx = |what: &'static str| move |e: services::Error| anyhow::anyhow!("opening {what}: {e}");
+
+    // The learner announces the run on `control` (history 1): wait for it, then check we fit.
+    let control_sub = services::control(&node, &svc).map_err(ctx("control"))?.subscriber_builder().create()?;
+    let deadline = Instant::now() + Duration::from_secs_f64(args.connect_timeout);
+    let mut control: Control = loop {
+        if let Some(s) = control_sub.receive()? {
+            break *s.payload();
+        }
+        if Instant::now() > deadline {
+            bail!("no learner for run `{}` answered within {} s; start `learner` first (or use `selkd train`)", args.run_id, args.connect_timeout);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    selkd_protocol::check_peer(&control, spec.id, spec.obs_dim, spec.act_dim)?;
+    if args.worker >= control.actors as usize {
+        bail!("--worker {} is out of range: the run has {} actors (0..{})", args.worker, control.actors, control.actors - 1);
+    }
+    let k = control.actors as usize;
+    let hidden: Vec<usize> = control.hidden[..control.hidden_layers as usize].iter().map(|&h| h as usize).collect();
+    let layout = ActorLayout::new(spec.obs_dim, spec.act_dim, &hidden);
+
+    let weights_sub = services::weights(&node, &svc, args.worker).map_err(ctx("weights"))?.subscriber_builder().create()?;
+    let transitions_svc = services::transitions(&node, &svc, k).map_err(ctx("transitions"))?;
+    let row = TransitionRow { obs_dim: spec.obs_dim, act_dim: spec.act_dim };
+    let publisher = transitions_svc.publisher_builder().initial_max_slice_len(row.len()).create()?;
+    let reports = services::reports(&node, &svc, k).map_err(ctx("reports"))?.publisher_builder().create()?;
+    let to_learner = services::to_learner(&node, &svc, k).map_err(ctx("to-learner"))?.notifier_builder().create()?;
+    let wake = services::to_workers(&node, &svc).map_err(ctx("to-workers"))?.listener_builder().create()?;
+
+    let mut actor: Option<Actor> = None;
+    let mut weights_version = 0u64;
+    let receive_weights = |actor: &mut Option<Actor>, version: &mut u64| -> Result<()> {
+        while let Some(s) = weights_sub.receive()? {
+            match actor {
+                Some(a) => a.set_params(s.payload())?,
+                None => *actor = Some(Actor::from_flat(layout.clone(), s.payload().to_vec())?),
+            }
+            *version = s.user_header().version;
+        }
+        Ok(())
+    };
+    // Rejoin with the latest weights before doing anything else (they are in the history).
+    let deadline = Instant::now() + Duration::from_secs_f64(args.connect_timeout);
+    while actor.is_none() {
+        receive_weights(&mut actor, &mut weights_version)?;
+        if Instant::now() > deadline {
+            bail!("the learner announced the run but sent no weights for actor {} within {} s", args.worker, args.connect_timeout);
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let hello = |kind, version, epoch, episodes, mean_return, success_rate| Report {
+        kind,
+        worker: args.worker as u32,
+        generation: args.generation,
+        protocol_version: PROTOCOL_VERSION,
+        env: Name::new(spec.id),
+        obs_dim: spec.obs_dim as u32,
+        act_dim: spec.act_dim as u32,
+        weights_version: version,
+        epoch,
+        episodes,
+        mean_return,
+        success_rate,
+    };
+    reports.send_copy(hello(ReportKind::Hello, weights_version, 0, 0, f64::NAN, f64::NAN))?;
+    to_learner.notify()?;
+    tracing::info!(worker = args.worker, generation = args.generation, weights_version, "joined run {}", args.run_id);
+
+    let seed = control.seed;
+    let mut action_rng = Pcg64::seed_from_u64(seed_for(seed, args.worker, args.generation, 1));
+    let mut obs = env.reset(Some(seed_for(seed, args.worker, args.generation, 2)));
+    // Counted from what the learner has already received from this actor, so budgets carry over restarts.
+    let mut sent = control.received[args.worker];
+    let mut episode = 0u64;
+    let mut t = 0u64;
+    let mut episode_return = 0.0f64;
+    // A restarted worker redoes the current evaluation: its predecessor may have died before reporting
+    // it (the learner ignores an epoch it already has).
+    let mut evaluated = 0u64;
+    let mut eval_env = selkd_envs::make(&args.env)?;
+    let mut buf = Vec::with_capacity(row.len());
+    let mut last_learner_check = Instant::now();
+
+    loop {
+        receive_weights(&mut actor, &mut weights_version)?;
+        while let Some(s) = control_sub.receive()? {
+            control = *s.payload();
+        }
+        if control.stop != 0 {
+            tracing::info!(worker = args.worker, sent, "learner asked to stop");
+            return Ok(());
+        }
+        let policy = actor.as_ref().expect("weights received above");
+        let fresh = weights_version + control.max_policy_lag >= control.weights_version;
+        if control.eval_epoch > evaluated && weights_version >= control.weights_version {
+            // Deterministic evaluation of the current weights, on its own env and seeds.
+            let epoch = control.eval_epoch;
+            let (mean_return, success_rate) = evaluate(&mut *eval_env, policy, control.eval_episodes as usize, |e| seed_for(seed, args.worker, 0, 1_000_000 + epoch * 1000 + e as u64));
+            reports.send_copy(hello(ReportKind::Evaluation, weights_version, epoch, control.eval_episodes, mean_return, success_rate))?;
+            to_learner.notify()?;
+            evaluated = epoch;
+            continue;
+        }
+        if sent < control.budget[args.worker] && fresh {
+            let warmup = sent < control.warmup_steps;
+            let action: Vec<f32> = if warmup {
+                (0..spec.act_dim).map(|_| action_rng.gen_range(-1.0f32..=1.0)).collect()
+            } else {
+                policy.sample_action(&obs, &mut action_rng)
+            };
+            let step = env.step(&action);
+            episode_return += step.reward;
+            let done = step.terminated || step.truncated;
+            row.write(&mut buf, &obs, &action, step.reward as f32, &step.obs, step.terminated, step.truncated);
+            let mut sample = publisher.loan_slice_uninit(row.len())?;
+            *sample.user_header_mut() = TransitionHeader {
+                worker: args.worker as u32,
+                generation: args.generation,
+                episode,
+                step: t,
+                policy_version: if warmup { 0 } else { weights_version },
+                obs_dim: spec.obs_dim as u32,
+                act_dim: spec.act_dim as u32,
+                episode_return: if done { episode_return } else { f64::NAN },
+            };
+            sample.write_from_slice(&buf).send()?;
+            to_learner.notify()?;
+            sent += 1;
+            t += 1;
+            if done {
+                obs = env.reset(None);
+                episode += 1;
+                t = 0;
+                episode_return = 0.0;
+            } else {
+                obs = step.obs;
+            }
+            continue;
+        }
+        // Nothing allowed yet: sleep until the learner says something.
+        wake.timed_wait(|_| {}, Duration::from_millis(200))?;
+        if last_learner_check.elapsed() > Duration::from_secs(2) {
+            last_learner_check = Instant::now();
+            if !learner_alive(&args.run_id)? {
+                bail!("the learner of run `{}` is gone; stopping", args.run_id);
+            }
+        }
+    }
+}
+
+/// Mean undiscounted return (and success rate, where the task reports success) of `episodes`
+/// episodes with the deterministic action `tanh(μ)`.
+fn evaluate(env: &mut dyn Env, policy: &Actor, episodes: usize, seed: impl Fn(usize) -> u64) -> (f64, f64) {
+    let (mut total, mut successes, mut with_success) = (0.0, 0usize, 0usize);
+    for e in 0..episodes {
+        let mut obs = env.reset(Some(seed(e)));
+        loop {
+            let step = env.step(&policy.mean_action(&obs));
+            total += step.reward;
+            if step.terminated || step.truncated {
+                if let Some(s) = step.success {
+                    with_success += 1;
+                    successes += s as usize;
+                }
+                break;
+            }
+            obs = step.obs;
+        }
+    }
+    let rate = if with_success > 0 { successes as f64 / with_success as f64 } else { f64::NAN };
+    (total / episodes as f64, rate)
+}
+
+/// Whether a live `learner` node exists (dead ones are cleaned up by iceoryx2 as it lists them).
+fn learner_alive(run_id: &str) -> Result<bool> {
+    let name = selkd_protocol::learner_node_name(run_id);
+    let mut alive = false;
+    Node::<ipc::Service>::list(Config::global_config(), |state| {
+        if let NodeState::Alive(view) = state {
+            use iceoryx2::node::NodeView;
+            if view.details().as_ref().is_some_and(|d| d.name().to_string() == name) {
+                alive = true;
+            }
+        }
+        CallbackProgression::Continue
+    })
+    .context("listing iceoryx2 nodes")?;
+    Ok(alive)
+}

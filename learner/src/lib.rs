@@ -13,3 +13,7 @@ pub mod selkd;
 pub mod squashed_gaussian;
 pub mod targets;
 pub mod bench;
+pub mod checkpoint;
+pub mod ranking;
+pub mod rate_limit;
+pub mod service;

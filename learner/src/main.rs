@@ -1,1 +1,57 @@
-fn main(){ let t = tch::Tensor::from_slice(&[1f32,2.,3.]); println!("{}", t.sum(tch::Kind::Float).double_value(&[])); println!("cuda {}", tch::Cuda::is_available()); }
+//! `learner`: the SELKD learner process. Usually started by `selkd train`; it can also be run by
+//! hand beside `actor-worker` processes that use the same `--run-id`.
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use selkd_learner::config::Config;
+use selkd_learner::service::{Learner, Outcome};
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+#[derive(Parser, Debug)]
+#[command(version, about = "The SELKD learner: trains K actors and N critics from the transitions of actor-worker processes")]
+struct Args {
+    /// Config file (TOML); defaults apply to every key it leaves out.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Override one config key, e.g. `--set algo.critics=4` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Where metrics.csv and checkpoints go.
+    #[arg(long, default_value = "runs/manual")]
+    run_dir: PathBuf,
+    /// Run id shared with the workers.
+    #[arg(long)]
+    run_id: String,
+    /// Continue from a checkpoint directory (e.g. RUN/checkpoints/final).
+    #[arg(long)]
+    resume: Option<PathBuf>,
+}
+
+fn main() {
+    tracing_subscriber::fmt().with_writer(std::io::stderr).with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into())).init();
+    let args = Args::parse();
+    match run(&args) {
+        Ok(Outcome::Finished) => {}
+        Ok(Outcome::Interrupted) => std::process::exit(130),
+        Err(e) => {
+            eprintln!("learner: error: {e:#}");
+            std::process::exit(1);
+        }
+    }
+}
+
+fn run(args: &Args) -> Result<Outcome> {
+    let text = match &args.config {
+        Some(p) => std::fs::read_to_string(p).with_context(|| format!("reading config {}", p.display()))?,
+        None => String::new(),
+    };
+    let cfg = Config::from_toml_with_overrides(&text, &args.set)?;
+    let stop = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(sig, stop.clone()).context("installing signal handlers")?;
+    }
+    let mut learner = Learner::new(cfg, &args.run_dir, args.resume.as_deref())?;
+    learner.run(&args.run_id, stop)
+}

@@ -309,6 +309,8 @@ pub mod services {
 
     /// A node that leaves signals to the process (the launcher manages them).
     pub fn node(name: &str) -> Result<Node, Error> {
+        // iceoryx2's own warnings (e.g. "no config file loaded") are noise to users; keep errors.
+        set_log_level_from_env_or(LogLevel::Error);
         Ok(NodeBuilder::new()
             .name(&NodeName::new(name)?)
             .signal_handling_mode(SignalHandlingMode::Disabled)
@@ -373,4 +375,9 @@ pub mod services {
     pub fn to_workers(node: &Node, s: &Services) -> Result<Event, Error> {
         Ok(node.service_builder(&s.to_workers()?).event().max_notifiers(2).max_listeners(MAX_ACTORS * 2 + 4).open_or_create()?)
     }
+}
+
+/// The learner's iceoryx2 node name; workers watch for it to notice a learner that is gone.
+pub fn learner_node_name(run_id: &str) -> String {
+    format!("learner-{run_id}")
 }

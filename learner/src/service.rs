@@ -1,0 +1,516 @@
+//! The learner process: talks to the actor workers over iceoryx2, fills the replay buffer, runs
+//! SELKD's rounds in lockstep (sync) or rate-limited (async), publishes weights, control and the
+//! ranking, and writes metrics, progress and checkpoints.
+
+use crate::checkpoint::{self, TrainingState};
+use crate::config::{Config, Mode};
+use crate::ranking::Ranking;
+use crate::rate_limit::RateLimiter;
+use crate::replay::ReplayBuffer;
+use crate::selkd::{RoundStats, Selkd};
+use anyhow::{anyhow, bail, Context, Result};
+use iceoryx2::port::update_connections::UpdateConnections;
+use selkd_protocol::{self as proto, services, Control, Name, ReportKind, Services, TransitionHeader, TransitionRow, MAX_ACTORS, MAX_HIDDEN_LAYERS, PROTOCOL_VERSION};
+use std::collections::VecDeque;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tch::Device;
+
+/// How the run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Outcome {
+    /// The env-step budget was reached.
+    Finished,
+    /// Asked to stop (SIGINT/SIGTERM); a checkpoint was written.
+    Interrupted,
+}
+
+pub fn parse_device(s: &str) -> Result<Device> {
+    let device = match s {
+        "cpu" => return Ok(Device::Cpu),
+        "cuda" => Device::Cuda(0),
+        other => Device::Cuda(other.strip_prefix("cuda:").and_then(|n| n.parse().ok()).ok_or_else(|| anyhow!("device `{other}`: use cpu, cuda or cuda:N"))?),
+    };
+    if !tch::Cuda::is_available() {
+        bail!("run.device = {s}, but libtorch sees no CUDA device here; use --set run.device=cpu");
+    }
+    Ok(device)
+}
+
+struct Pending {
+    header: TransitionHeader,
+    row: Vec<f32>,
+}
+
+pub struct Learner {
+    cfg: Config,
+    run_dir: PathBuf,
+    k: usize,
+    row: TransitionRow,
+    selkd: Selkd,
+    replay: ReplayBuffer,
+    ranking: Ranking,
+    limiter: RateLimiter,
+    received: Vec<u64>,
+    inserted: u64,
+    lockstep_rounds: u64,
+    weights_version: u64,
+    eval_epoch: u64,
+    eval_reported: Vec<u64>,
+    pending: Vec<VecDeque<Pending>>,
+    dropped_nonfinite: u64,
+    dropped_malformed: u64,
+    lag_sum: f64,
+    lag_count: u64,
+    lag_max: u64,
+    last_stats: RoundStats,
+    epochs_logged: u64,
+    next_checkpoint: u64,
+    started: Instant,
+    wall_offset: f64,
+    metrics: std::fs::File,
+}
+
+impl Learner {
+    pub fn new(cfg: Config, run_dir: &Path, resume: Option<&Path>) -> Result<Self> {
+        let spec = selkd_envs::spec(&cfg.run.env)?;
+        let device = parse_device(&cfg.run.device)?;
+        if cfg.run.threads > 0 {
+            tch::set_num_threads(cfg.run.threads as i32);
+        }
+        let k = cfg.algo.actors;
+        if k > MAX_ACTORS || cfg.algo.hidden.len() > MAX_HIDDEN_LAYERS {
+            bail!("this build supports at most {MAX_ACTORS} actors and {MAX_HIDDEN_LAYERS} hidden layers");
+        }
+        let mut selkd = Selkd::new(&cfg.algo, spec.obs_dim, spec.act_dim, device, cfg.run.seed);
+        let mut replay = ReplayBuffer::new(cfg.algo.replay_capacity, spec.obs_dim, spec.act_dim, device);
+        let warmup_total = cfg.warmup_per_actor() * k as u64;
+        std::fs::create_dir_all(run_dir.join("checkpoints")).with_context(|| format!("creating {}", run_dir.display()))?;
+        let metrics_path = run_dir.join("metrics.csv");
+        let fresh_metrics = resume.is_none() || !metrics_path.exists();
+        let mut metrics = std::fs::OpenOptions::new().create(true).append(true).open(&metrics_path).with_context(|| format!("opening {}", metrics_path.display()))?;
+        if fresh_metrics {
+            let per = |p: &str| (0..k).map(|i| format!("{p}_{i}")).collect::<Vec<_>>().join(",");
+            writeln!(metrics, "epoch,env_steps,wall_s,critic_updates,updates_per_s,env_steps_per_s,critic_loss,q_mean,best,{},{},{},{},policy_lag_mean,dropped", per("eval_return"), per("score"), per("alpha"), per("kl_to_best"))?;
+        }
+        let resumed = match resume {
+            Some(dir) => {
+                let state = checkpoint::load(dir, &mut selkd, &mut replay).with_context(|| format!("resuming from {}", dir.display()))?;
+                if replay.is_empty() {
+                    tracing::warn!("the checkpoint holds no replay buffer: training resumes on an empty one (set run.checkpoint_replay = true to keep it)");
+                }
+                tracing::info!(env_steps = state.inserted, version = state.weights_version, "resumed from {}", dir.display());
+                Some(state)
+            }
+            None => None,
+        };
+        let every = cfg.run.checkpoint_every;
+        let inserted = resumed.as_ref().map_or(0, |s| s.inserted);
+        let eval_epoch = resumed.as_ref().map_or(0, |s| s.eval_epoch);
+        Ok(Self {
+            limiter: RateLimiter::new(k, cfg.algo.utd, warmup_total, cfg.asynchronous.ratio_tolerance),
+            ranking: resumed.as_ref().map_or_else(|| Ranking::new(k, cfg.eval.score_window), |s| s.ranking.clone()),
+            row: TransitionRow { obs_dim: spec.obs_dim, act_dim: spec.act_dim },
+            k,
+            received: resumed.as_ref().map_or_else(|| vec![0; k], |s| s.received.clone()),
+            inserted,
+            lockstep_rounds: resumed.as_ref().map_or(0, |s| s.lockstep_rounds),
+            weights_version: resumed.as_ref().map_or(1, |s| s.weights_version),
+            eval_epoch,
+            eval_reported: vec![eval_epoch; k],
+            pending: (0..k).map(|_| VecDeque::new()).collect(),
+            dropped_nonfinite: 0,
+            dropped_malformed: 0,
+            lag_sum: 0.0,
+            lag_count: 0,
+            lag_max: 0,
+            last_stats: RoundStats::default(),
+            epochs_logged: eval_epoch,
+            next_checkpoint: if every == 0 { 0 } else { (inserted / every + 1) * every },
+            started: Instant::now(),
+            wall_offset: resumed.as_ref().map_or(0.0, |s| s.wall_seconds),
+            metrics,
+            run_dir: run_dir.to_path_buf(),
+            selkd,
+            replay,
+            cfg,
+        })
+    }
+
+    fn warmup_total(&self) -> u64 {
+        self.cfg.warmup_per_actor() * self.k as u64
+    }
+
+    fn wall(&self) -> f64 {
+        self.wall_offset + self.started.elapsed().as_secs_f64()
+    }
+
+    /// Runs until the budget is reached or `stop` is raised.
+    pub fn run(&mut self, run_id: &str, stop: Arc<AtomicBool>) -> Result<Outcome> {
+        let svc = Services::new(run_id);
+        let node = services::node(&proto::learner_node_name(run_id)).map_err(|e| anyhow!("starting the iceoryx2 node: {e}"))?;
+        let io = |what: &'static str| move |e: services::Error| anyhow!("opening the {what} service: {e}");
+        let k = self.k;
+        let transitions = services::transitions(&node, &svc, k).map_err(io("transitions"))?.subscriber_builder().buffer_size(proto::TRANSITION_BUFFER).create()?;
+        let reports = services::reports(&node, &svc, k).map_err(io("reports"))?.subscriber_builder().create()?;
+        let wake = services::to_learner(&node, &svc, k).map_err(io("to-learner"))?.listener_builder().create()?;
+        let notify_workers = services::to_workers(&node, &svc).map_err(io("to-workers"))?.notifier_builder().create()?;
+        let control_pub = services::control(&node, &svc).map_err(io("control"))?.publisher_builder().create()?;
+        let ranking_pub = services::ranking(&node, &svc).map_err(io("ranking"))?.publisher_builder().create()?;
+        let n_params = self.selkd.actor_weights(0).len();
+        let weight_pubs = (0..k)
+            .map(|i| Ok(services::weights(&node, &svc, i).map_err(io("weights"))?.publisher_builder().initial_max_slice_len(n_params).create()?))
+            .collect::<Result<Vec<_>>>()?;
+
+        let publish_weights = |s: &Selkd, version: u64| -> Result<()> {
+            for (i, p) in weight_pubs.iter().enumerate() {
+                let mut sample = p.loan_slice_uninit(n_params)?;
+                *sample.user_header_mut() = proto::WeightsHeader { actor: i as u32, version };
+                sample.write_from_slice(&s.actor_weights(i)).send()?;
+            }
+            Ok(())
+        };
+        publish_weights(&self.selkd, self.weights_version)?;
+        let mut last_control = None;
+        let mut ranking_version = u64::MAX;
+        let mut last_progress = Instant::now();
+        let mut last_connect = Instant::now();
+        let mut window = (Instant::now(), self.inserted, self.selkd.critic_updates);
+        let mut rates = (0.0, 0.0);
+        let mut finishing_since: Option<Instant> = None;
+        let mut outcome = Outcome::Finished;
+
+        loop {
+            // Wake on any worker message (or every 50 ms to keep progress, checkpoints and stop
+            // handling responsive).
+            wake.timed_wait(|_| {}, Duration::from_millis(50))?;
+            while let Some(r) = reports.receive()? {
+                self.on_report(r.payload());
+            }
+            while let Some(t) = transitions.receive()? {
+                self.on_transition(*t.user_header(), t.payload());
+            }
+            let trained = match self.cfg.run.mode {
+                Mode::Sync => self.advance_sync()?,
+                Mode::Async => self.advance_async()?,
+            };
+            if trained {
+                publish_weights(&self.selkd, self.weights_version)?;
+            }
+            self.log_epochs()?;
+            if self.cfg.run.checkpoint_every > 0 && self.inserted >= self.next_checkpoint && self.inserted < self.cfg.run.total_env_steps {
+                self.checkpoint(&format!("step-{}", self.inserted))?;
+                self.next_checkpoint += self.cfg.run.checkpoint_every;
+            }
+            let budget_reached = self.inserted >= self.cfg.run.total_env_steps;
+            let evals_in = self.eval_reported.iter().all(|&e| e >= self.eval_epoch);
+            let interrupted = stop.load(Ordering::Relaxed);
+            if budget_reached && finishing_since.is_none() {
+                finishing_since = Some(Instant::now());
+            }
+            // At the end, wait (a bounded time) for the final evaluations so the last epoch is scored.
+            let done = interrupted || (budget_reached && (evals_in || finishing_since.is_some_and(|t| t.elapsed() > Duration::from_secs(120))));
+            let control = self.control(done);
+            if last_control.as_ref().map(|c: &Control| !same_control(c, &control)).unwrap_or(true) {
+                control_pub.send_copy(control)?;
+                notify_workers.notify()?;
+                last_control = Some(control);
+            }
+            // Late (or restarted) subscribers get the latest control, ranking and weights from the
+            // publishers' history only once the publisher looks for new connections.
+            if last_connect.elapsed() >= Duration::from_millis(50) {
+                last_connect = Instant::now();
+                control_pub.update_connections()?;
+                ranking_pub.update_connections()?;
+                for p in &weight_pubs {
+                    p.update_connections()?;
+                }
+            }
+            if self.ranking.version != ranking_version {
+                ranking_version = self.ranking.version;
+                ranking_pub.send_copy(self.ranking_message())?;
+            }
+            if last_progress.elapsed() >= Duration::from_secs(1) || done {
+                let dt = window.0.elapsed().as_secs_f64();
+                if dt >= 1.0 {
+                    rates = ((self.selkd.critic_updates - window.2) as f64 / dt, (self.inserted - window.1) as f64 / dt);
+                    window = (Instant::now(), self.inserted, self.selkd.critic_updates);
+                }
+                self.progress(rates);
+                last_progress = Instant::now();
+            }
+            if done {
+                if interrupted {
+                    outcome = Outcome::Interrupted;
+                }
+                break;
+            }
+        }
+        self.log_epochs()?;
+        self.checkpoint("final")?;
+        // Give workers a moment to read the stop order before the node (and its history) goes away.
+        std::thread::sleep(Duration::from_millis(200));
+        tracing::info!(env_steps = self.inserted, critic_updates = self.selkd.critic_updates, dropped_nonfinite = self.dropped_nonfinite, "learner done ({outcome:?})");
+        Ok(outcome)
+    }
+
+    fn on_report(&mut self, r: &proto::Report) {
+        let w = r.worker as usize;
+        if w >= self.k {
+            tracing::warn!("report from worker {w}, but the run has {} actors; ignored", self.k);
+            return;
+        }
+        match r.kind {
+            ReportKind::Hello => {
+                let spec = selkd_envs::spec(&self.cfg.run.env).expect("validated");
+                if r.protocol_version != PROTOCOL_VERSION || r.env.as_str() != spec.id || r.obs_dim as usize != spec.obs_dim || r.act_dim as usize != spec.act_dim {
+                    tracing::error!(
+                        "worker {w} does not fit this run: it has protocol v{}, env `{}`, obs {}, act {}; the learner has protocol v{PROTOCOL_VERSION}, env `{}`, obs {}, act {}",
+                        r.protocol_version, r.env.as_str(), r.obs_dim, r.act_dim, spec.id, spec.obs_dim, spec.act_dim
+                    );
+                    return;
+                }
+                tracing::info!(
+                    "worker {w} joined (generation {}) holding weights version {}; learner at version {}",
+                    r.generation, r.weights_version, self.weights_version
+                );
+            }
+            ReportKind::Evaluation => {
+                if r.epoch > self.eval_reported[w] {
+                    self.eval_reported[w] = r.epoch;
+                    self.ranking.evaluation(w, r.epoch, r.mean_return);
+                    tracing::debug!(worker = w, epoch = r.epoch, mean_return = r.mean_return, "evaluation");
+                }
+            }
+        }
+    }
+
+    fn on_transition(&mut self, h: TransitionHeader, row: &[f32]) {
+        let w = h.worker as usize;
+        if w >= self.k || h.obs_dim as usize != self.row.obs_dim || h.act_dim as usize != self.row.act_dim || row.len() != self.row.len() {
+            self.dropped_malformed += 1;
+            if self.dropped_malformed == 1 {
+                tracing::error!("dropped a transition that does not fit the run (worker {w}, obs {}, act {}, {} values); counting further ones", h.obs_dim, h.act_dim, row.len());
+            }
+            return;
+        }
+        self.received[w] += 1;
+        if !row.iter().all(|v| v.is_finite()) {
+            self.dropped_nonfinite += 1;
+            if self.dropped_nonfinite == 1 || self.dropped_nonfinite.is_power_of_two() {
+                tracing::warn!(worker = w, total = self.dropped_nonfinite, "dropped a transition with a NaN or infinite value (never stored)");
+            }
+            return;
+        }
+        if h.policy_version > 0 {
+            let lag = self.weights_version.saturating_sub(h.policy_version);
+            self.lag_sum += lag as f64;
+            self.lag_count += 1;
+            self.lag_max = self.lag_max.max(lag);
+        }
+        let p = Pending { header: h, row: row.to_vec() };
+        match self.cfg.run.mode {
+            Mode::Sync => self.pending[w].push_back(p),
+            Mode::Async => self.store(p),
+        }
+    }
+
+    fn store(&mut self, p: Pending) {
+        let (s, a, r, s2, terminated, _truncated) = self.row.split(&p.row);
+        self.replay.push(s, a, r, s2, terminated);
+        self.inserted += 1;
+        if p.header.episode_return.is_finite() {
+            self.ranking.training_episode(p.header.worker as usize, p.header.episode_return);
+        }
+        let epoch = self.inserted / self.cfg.eval.epoch_env_steps;
+        if epoch > self.eval_epoch {
+            self.eval_epoch = epoch;
+        }
+    }
+
+    /// Algorithm 1's lockstep: once every actor's step of this round is in (and every requested
+    /// evaluation is back), store them in actor order and train. Returns whether weights changed.
+    fn advance_sync(&mut self) -> Result<bool> {
+        let mut trained = false;
+        loop {
+            let evals_in = self.eval_reported.iter().all(|&e| e >= self.eval_epoch);
+            if !evals_in || self.pending.iter().any(|q| q.is_empty()) || self.inserted >= self.cfg.run.total_env_steps {
+                return Ok(trained);
+            }
+            for w in 0..self.k {
+                let p = self.pending[w].pop_front().expect("checked non-empty");
+                self.store(p);
+            }
+            self.lockstep_rounds += 1;
+            if self.inserted >= self.warmup_total() {
+                self.train_round();
+                trained = true;
+                // Hand the new weights out before the next round (the caller publishes them).
+                return Ok(trained);
+            }
+        }
+    }
+
+    /// Train as many rounds as the inserted data pays for (never ahead of it).
+    fn advance_async(&mut self) -> Result<bool> {
+        let due = self.limiter.rounds_due(self.inserted);
+        let mut trained = false;
+        let t0 = Instant::now();
+        while self.selkd.actor_updates < due && t0.elapsed() < Duration::from_millis(500) {
+            self.train_round();
+            trained = true;
+        }
+        Ok(trained)
+    }
+
+    fn train_round(&mut self) {
+        let best = self.ranking.best();
+        self.last_stats = self.selkd.train_round(&mut self.replay, best);
+        self.weights_version += 1;
+    }
+
+    fn control(&self, stop: bool) -> Control {
+        let spec = selkd_envs::spec(&self.cfg.run.env).expect("validated");
+        let per_actor_cap = self.cfg.steps_per_actor();
+        let mut budget = [0u64; MAX_ACTORS];
+        match self.cfg.run.mode {
+            Mode::Sync => {
+                // Warm-up steps need no weights: grant them at once; then one step per round.
+                let b = self.cfg.warmup_per_actor().max(self.lockstep_rounds + 1).min(per_actor_cap);
+                budget[..self.k].iter_mut().for_each(|x| *x = b);
+            }
+            Mode::Async => {
+                let allowance = self.limiter.insert_allowance(self.inserted, self.selkd.actor_updates);
+                let each = allowance.div_ceil(self.k as u64);
+                for (w, x) in budget[..self.k].iter_mut().enumerate() {
+                    *x = (self.received[w] + each).min(per_actor_cap);
+                }
+            }
+        }
+        let mut received = [0u64; MAX_ACTORS];
+        received[..self.k].copy_from_slice(&self.received);
+        let mut hidden = [0u32; MAX_HIDDEN_LAYERS];
+        for (h, &v) in hidden.iter_mut().zip(&self.cfg.algo.hidden) {
+            *h = v as u32;
+        }
+        Control {
+            protocol_version: PROTOCOL_VERSION,
+            actors: self.k as u32,
+            env: Name::new(spec.id),
+            obs_dim: spec.obs_dim as u32,
+            act_dim: spec.act_dim as u32,
+            seed: self.cfg.run.seed,
+            hidden,
+            hidden_layers: self.cfg.algo.hidden.len() as u32,
+            warmup_steps: self.cfg.warmup_per_actor(),
+            weights_version: self.weights_version,
+            max_policy_lag: match self.cfg.run.mode {
+                Mode::Sync => 0,
+                Mode::Async => self.cfg.asynchronous.max_policy_lag,
+            },
+            eval_epoch: self.eval_epoch,
+            eval_episodes: self.cfg.eval.episodes as u32,
+            stop: stop as u32,
+            received,
+            budget,
+        }
+    }
+
+    fn ranking_message(&self) -> proto::Ranking {
+        let mut scores = [f64::NAN; MAX_ACTORS];
+        for (s, v) in scores.iter_mut().zip(self.ranking.scores()) {
+            *s = v.unwrap_or(f64::NAN);
+        }
+        proto::Ranking { version: self.ranking.version, actors: self.k as u32, best: self.ranking.best() as u32, scores }
+    }
+
+    /// One `PROGRESS {json}` line on stdout per second: the launcher draws its progress line from it.
+    fn progress(&self, (updates_per_s, steps_per_s): (f64, f64)) {
+        let scores: Vec<Option<f64>> = self.ranking.scores();
+        let (ratio, target) = self.limiter.ratio(self.selkd.critic_updates, self.inserted);
+        let line = serde_json::json!({
+            "env_steps": self.inserted,
+            "total_env_steps": self.cfg.run.total_env_steps,
+            "critic_updates": self.selkd.critic_updates,
+            "updates_per_s": updates_per_s,
+            "env_steps_per_s": steps_per_s,
+            "scores": scores,
+            "best": self.ranking.best(),
+            "weights_version": self.weights_version,
+            "policy_lag_mean": if self.lag_count > 0 { self.lag_sum / self.lag_count as f64 } else { 0.0 },
+            "policy_lag_max": self.lag_max,
+            "updates_per_transition": ratio,
+            "target_updates_per_transition": target,
+            "dropped_nonfinite": self.dropped_nonfinite,
+            "dropped_malformed": self.dropped_malformed,
+            "wall_s": self.wall(),
+        });
+        println!("PROGRESS {line}");
+        let _ = std::io::stdout().flush();
+    }
+
+    /// One metrics row per epoch whose evaluations are all in.
+    fn log_epochs(&mut self) -> Result<()> {
+        let complete = *self.eval_reported.iter().min().unwrap_or(&0);
+        while self.epochs_logged < complete.min(self.eval_epoch) {
+            self.epochs_logged += 1;
+            let e = self.epochs_logged;
+            let wall = self.wall();
+            let join = |v: &[f64]| v.iter().map(|x| format!("{x:.6}")).collect::<Vec<_>>().join(",");
+            let scores: Vec<f64> = self.ranking.scores().into_iter().map(|s| s.unwrap_or(f64::NAN)).collect();
+            let eval: Vec<f64> = (0..self.k).map(|i| if self.ranking.last_eval_epoch(i) >= e { scores[i] } else { f64::NAN }).collect();
+            let pad = |v: &[f64]| if v.len() == self.k { join(v) } else { join(&vec![f64::NAN; self.k]) };
+            writeln!(
+                self.metrics,
+                "{e},{},{wall:.3},{},{:.3},{:.3},{:.6},{:.6},{},{},{},{},{},{:.3},{}",
+                e * self.cfg.eval.epoch_env_steps,
+                self.selkd.critic_updates,
+                self.selkd.critic_updates as f64 / wall.max(1e-9),
+                self.inserted as f64 / wall.max(1e-9),
+                self.last_stats.critic_loss,
+                self.last_stats.q_mean,
+                self.ranking.best(),
+                join(&eval),
+                join(&scores),
+                pad(&self.last_stats.alpha),
+                pad(&self.last_stats.kl_to_best),
+                if self.lag_count > 0 { self.lag_sum / self.lag_count as f64 } else { 0.0 },
+                self.dropped_nonfinite + self.dropped_malformed,
+            )?;
+            self.metrics.flush()?;
+            tracing::info!(epoch = e, env_steps = e * self.cfg.eval.epoch_env_steps, best = self.ranking.best(), "evaluation returns {:?}", eval);
+        }
+        Ok(())
+    }
+
+    fn checkpoint(&mut self, name: &str) -> Result<()> {
+        let dir = self.run_dir.join("checkpoints").join(name);
+        let state = TrainingState {
+            config: self.cfg.clone(),
+            rng: self.selkd.rng.clone(),
+            critic_updates: self.selkd.critic_updates,
+            actor_updates: self.selkd.actor_updates,
+            adam_steps: checkpoint::adam_steps(&self.selkd),
+            received: self.received.clone(),
+            inserted: self.inserted,
+            lockstep_rounds: self.lockstep_rounds,
+            weights_version: self.weights_version,
+            eval_epoch: self.eval_epoch,
+            ranking: self.ranking.clone(),
+            wall_seconds: self.wall(),
+        };
+        let replay = self.cfg.run.checkpoint_replay.then_some(&mut self.replay);
+        checkpoint::save(&dir, &self.selkd, replay, &state)?;
+        std::fs::write(self.run_dir.join("checkpoints").join("latest"), format!("{name}\n"))?;
+        tracing::info!(env_steps = self.inserted, "checkpoint written to {}", dir.display());
+        Ok(())
+    }
+}
+
+fn same_control(a: &Control, b: &Control) -> bool {
+    // `received` changes with every transition but only matters to a worker that is starting.
+    a.weights_version == b.weights_version && a.eval_epoch == b.eval_epoch && a.stop == b.stop && a.budget == b.budget
+}
