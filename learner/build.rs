@@ -1,6 +1,6 @@
-//! Bakes libtorch's location into the binaries (so they run with no LD_LIBRARY_PATH), and links
-//! `torch_cuda` explicitly where the libtorch has it: with the default `--as-needed` linking it would
-//! otherwise be dropped, and `--device cuda` would find no CUDA.
+// Bakes libtorch's location into the binaries (so they run with no LD_LIBRARY_PATH), and links
+// `torch_cuda` explicitly where the libtorch has it: with the default `--as-needed` linking it would
+// otherwise be dropped, and `--device cuda` would find no CUDA.
 use std::path::PathBuf;
 
 fn main() {

@@ -1,0 +1,101 @@
+//! `selkd bench learner` and `selkd bench env`.
+
+use anyhow::Result;
+use clap::{Args, Subcommand};
+use rand::{Rng, SeedableRng};
+use selkd_learner::config::{AlgoConfig, Sharing};
+use std::time::Instant;
+
+#[derive(Subcommand, Debug)]
+pub enum BenchCommand {
+    /// The real SELKD round on synthetic data: prints `X updates/s` (critic-ensemble updates).
+    Learner(LearnerBench),
+    /// One env stepped single-threaded with random actions: prints `X env steps/s`.
+    Env {
+        /// Env name (see the README for the list).
+        name: String,
+        #[arg(long, default_value_t = 20_000)]
+        steps: usize,
+    },
+}
+
+#[derive(Args, Debug)]
+pub struct LearnerBench {
+    /// K actors.
+    #[arg(long, default_value_t = 1)]
+    k: usize,
+    /// N critics.
+    #[arg(long, default_value_t = 10)]
+    n: usize,
+    /// M, the target's critic subset.
+    #[arg(long, default_value_t = 2)]
+    m: usize,
+    /// G, critic updates per round.
+    #[arg(long, default_value_t = 20)]
+    g: usize,
+    #[arg(long, default_value_t = 256)]
+    batch: usize,
+    #[arg(long, default_value_t = 27)]
+    obs: usize,
+    #[arg(long, default_value_t = 8)]
+    act: usize,
+    #[arg(long, default_value_t = 256)]
+    hidden: usize,
+    /// per-update or per-critic.
+    #[arg(long, default_value = "per-update")]
+    sharing: String,
+    #[arg(long, default_value = "cpu")]
+    device: String,
+    /// Timed rounds (after one warm-up round).
+    #[arg(long, default_value_t = 10)]
+    rounds: usize,
+    /// libtorch threads (0 = its default).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+}
+
+pub fn run(cmd: BenchCommand) -> Result<()> {
+    match cmd {
+        BenchCommand::Learner(b) => {
+            let sharing = match b.sharing.as_str() {
+                "per-update" => Sharing::PerUpdate,
+                "per-critic" => Sharing::PerCritic,
+                other => anyhow::bail!("--sharing {other}: use per-update or per-critic"),
+            };
+            if b.m == 0 || b.m > b.n || b.k == 0 {
+                anyhow::bail!("need 1 ≤ --m ≤ --n and --k ≥ 1 (got k {}, n {}, m {})", b.k, b.n, b.m);
+            }
+            if b.threads > 0 {
+                tch::set_num_threads(b.threads as i32);
+            }
+            let cfg = AlgoConfig { actors: b.k, critics: b.n, subset: b.m, utd: b.g, batch_size: b.batch, hidden: vec![b.hidden, b.hidden], sharing, ..AlgoConfig::default() };
+            let device = selkd_learner::service::parse_device(&b.device)?;
+            let r = selkd_learner::bench::learner(&cfg, b.obs, b.act, device, b.rounds);
+            println!(
+                "K={} N={} M={} G={} batch={} obs={} act={} hidden={} {} on {} ({} threads): {:.1} rounds/s",
+                b.k, b.n, b.m, b.g, b.batch, b.obs, b.act, b.hidden, b.sharing, b.device, tch::get_num_threads(), r.rounds_per_sec
+            );
+            println!("{:.2} updates/s", r.critic_updates_per_sec);
+        }
+        BenchCommand::Env { name, steps } => {
+            let mut env = selkd_envs::make(&name)?;
+            let act = env.spec().act_dim;
+            let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
+            env.reset(Some(0));
+            let t0 = Instant::now();
+            let mut episodes = 0;
+            for _ in 0..steps {
+                let a: Vec<f32> = (0..act).map(|_| rng.gen_range(-1.0..=1.0)).collect();
+                let s = env.step(&a);
+                if s.terminated || s.truncated {
+                    env.reset(None);
+                    episodes += 1;
+                }
+            }
+            let dt = t0.elapsed().as_secs_f64();
+            println!("{name}: {steps} steps, {episodes} episodes");
+            println!("{:.0} env steps/s", steps as f64 / dt);
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,253 @@
+//! `selkd train`: the learner and K actor workers on this host, supervised.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use selkd_learner::config::Config;
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+use tokio::io::{AsyncBufReadExt, BufReader};
+use tokio::process::{Child, Command};
+use tokio::sync::mpsc;
+
+/// The quick default: learning on Pendulum within a few minutes on 2 cores.
+const QUICK_CONFIG: &str = include_str!("../../configs/quick.toml");
+/// Worker exit code meaning "this worker cannot join this run": restarting would not help.
+const WORKER_EXIT_MISMATCH: i32 = 2;
+
+#[derive(Args, Debug)]
+pub struct TrainArgs {
+    /// Config file (TOML). Without one, configs/quick.toml's settings are used.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Override a config key, e.g. `--set algo.actors=5` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Run directory (default: runs/<env>-<unix time>).
+    #[arg(long)]
+    run_dir: Option<PathBuf>,
+    /// Continue from a checkpoint directory, e.g. runs/X/checkpoints/final (raise run.total_env_steps to train further).
+    #[arg(long)]
+    resume: Option<PathBuf>,
+    /// Give up on a worker after this many restarts.
+    #[arg(long, default_value_t = 20)]
+    max_restarts: u32,
+}
+
+enum Event {
+    Progress(serde_json::Value),
+    WorkerExited { worker: usize, generation: u32, code: Option<i32>, signal: Option<i32> },
+    LearnerExited(std::process::ExitStatus),
+}
+
+pub fn run(args: TrainArgs) -> Result<i32> {
+    let text = match &args.config {
+        Some(p) => std::fs::read_to_string(p).with_context(|| format!("reading config {}", p.display()))?,
+        None => QUICK_CONFIG.to_string(),
+    };
+    let cfg = Config::from_toml_with_overrides(&text, &args.set)?;
+    if let Some(r) = &args.resume {
+        if !r.join("state.json").exists() {
+            bail!("--resume {}: not a checkpoint directory (no state.json); pick one under RUN/checkpoints/", r.display());
+        }
+    }
+    let bin_dir = std::env::current_exe()?.parent().map(Path::to_path_buf).context("locating selkd's directory")?;
+    let (learner_bin, worker_bin) = (bin_dir.join("learner"), bin_dir.join("actor-worker"));
+    for b in [&learner_bin, &worker_bin] {
+        if !b.exists() {
+            bail!("cannot find {} next to selkd; build all binaries with `cargo build --release`", b.display());
+        }
+    }
+    let stamp = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH)?.as_secs();
+    let run_dir = args.run_dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("{}-{stamp}", cfg.run.env)));
+    std::fs::create_dir_all(run_dir.join("logs")).with_context(|| format!("creating run directory {}", run_dir.display()))?;
+    std::fs::write(run_dir.join("config.toml"), cfg.to_toml())?;
+    let run_id = format!("r{}x{:x}", std::process::id(), std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH)?.subsec_nanos());
+    eprintln!("selkd: run {run_id}: {} with K={} actors, N={} critics ({:?} mode) → {}", cfg.run.env, cfg.algo.actors, cfg.algo.critics, cfg.run.mode, run_dir.display());
+
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    rt.block_on(supervise(&args, &cfg, &run_dir, &run_id, &learner_bin, &worker_bin))
+}
+
+fn log_file(run_dir: &Path, name: &str) -> Result<std::fs::File> {
+    let p = run_dir.join("logs").join(name);
+    std::fs::OpenOptions::new().create(true).append(true).open(&p).with_context(|| format!("opening {}", p.display()))
+}
+
+fn spawn_worker(bin: &Path, run_dir: &Path, run_id: &str, env: &str, worker: usize, generation: u32, tx: &mpsc::UnboundedSender<Event>) -> Result<u32> {
+    let log = log_file(run_dir, &format!("worker-{worker}.log"))?;
+    let mut child: Child = Command::new(bin)
+        .args(["--run-id", run_id, "--worker", &worker.to_string(), "--env", env, "--generation", &generation.to_string()])
+        .stdin(Stdio::null())
+        .stdout(log.try_clone()?)
+        .stderr(log)
+        .kill_on_drop(true)
+        .spawn()
+        .with_context(|| format!("starting {}", bin.display()))?;
+    let pid = child.id().unwrap_or(0);
+    let tx = tx.clone();
+    tokio::spawn(async move {
+        use std::os::unix::process::ExitStatusExt;
+        let status = child.wait().await;
+        let (code, signal) = status.map(|s| (s.code(), s.signal())).unwrap_or((None, None));
+        let _ = tx.send(Event::WorkerExited { worker, generation, code, signal });
+    });
+    Ok(pid)
+}
+
+async fn supervise(args: &TrainArgs, cfg: &Config, run_dir: &Path, run_id: &str, learner_bin: &Path, worker_bin: &Path) -> Result<i32> {
+    let (tx, mut rx) = mpsc::unbounded_channel::<Event>();
+    let mut learner_cmd = Command::new(learner_bin);
+    learner_cmd.arg("--config").arg(run_dir.join("config.toml")).arg("--run-dir").arg(run_dir).args(["--run-id", run_id]);
+    if let Some(r) = &args.resume {
+        learner_cmd.arg("--resume").arg(r);
+    }
+    let mut learner = learner_cmd
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(log_file(run_dir, "learner.log")?)
+        .kill_on_drop(true)
+        .spawn()
+        .with_context(|| format!("starting {}", learner_bin.display()))?;
+    let learner_pid = learner.id().unwrap_or(0) as i32;
+    let stdout = learner.stdout.take().expect("piped");
+    {
+        let (tx, tx_exit) = (tx.clone(), tx.clone());
+        let mut progress_log = log_file(run_dir, "progress.jsonl")?;
+        tokio::spawn(async move {
+            let mut lines = BufReader::new(stdout).lines();
+            while let Ok(Some(line)) = lines.next_line().await {
+                if let Some(json) = line.strip_prefix("PROGRESS ") {
+                    let _ = writeln!(progress_log, "{json}");
+                    if let Ok(v) = serde_json::from_str(json) {
+                        let _ = tx.send(Event::Progress(v));
+                    }
+                }
+            }
+        });
+        tokio::spawn(async move {
+            if let Ok(status) = learner.wait().await {
+                let _ = tx_exit.send(Event::LearnerExited(status));
+            }
+        });
+    }
+
+    let k = cfg.algo.actors;
+    let mut generation = vec![0u32; k];
+    let mut pids = vec![0u32; k];
+    for w in 0..k {
+        pids[w] = spawn_worker(worker_bin, run_dir, run_id, &cfg.run.env, w, 0, &tx)?;
+    }
+    let tty = std::io::stderr().is_terminal();
+    let started = Instant::now();
+    let mut last_line = Instant::now() - Duration::from_secs(60);
+    let mut stopping = false;
+    let mut failure: Option<String> = None;
+    let mut ctrl_c = Box::pin(tokio::signal::ctrl_c());
+    let learner_status = loop {
+        tokio::select! {
+            _ = &mut ctrl_c, if !stopping => {
+                stopping = true;
+                eprintln!("\nselkd: stopping (Ctrl-C): the learner writes a checkpoint, then everything exits");
+                unsafe { libc::kill(learner_pid, libc::SIGTERM) };
+            }
+            ev = rx.recv() => match ev {
+                None => bail!("supervision channel closed"),
+                Some(Event::Progress(p)) => {
+                    let line = progress_line(&p, started.elapsed());
+                    if tty {
+                        eprint!("\r\x1b[K{line}");
+                    } else if last_line.elapsed() >= Duration::from_secs(10) {
+                        eprintln!("{line}");
+                        last_line = Instant::now();
+                    }
+                }
+                Some(Event::WorkerExited { worker, generation: g, code, signal }) => {
+                    if g != generation[worker] || stopping {
+                        continue;
+                    }
+                    if code == Some(0) {
+                        continue; // the learner told it to stop
+                    }
+                    if code == Some(WORKER_EXIT_MISMATCH) {
+                        failure = Some(format!("worker {worker} cannot join the run; see {}", run_dir.join("logs").join(format!("worker-{worker}.log")).display()));
+                        stopping = true;
+                        unsafe { libc::kill(learner_pid, libc::SIGTERM) };
+                        continue;
+                    }
+                    if generation[worker] >= args.max_restarts {
+                        failure = Some(format!("worker {worker} died {} times; giving up", generation[worker] + 1));
+                        stopping = true;
+                        unsafe { libc::kill(learner_pid, libc::SIGTERM) };
+                        continue;
+                    }
+                    generation[worker] += 1;
+                    let why = match (code, signal) { (_, Some(s)) => format!("signal {s}"), (Some(c), _) => format!("exit code {c}"), _ => "unknown".into() };
+                    eprintln!("{}selkd: worker {worker} died ({why}); restarting it (generation {})", if tty { "\n" } else { "" }, generation[worker]);
+                    pids[worker] = spawn_worker(worker_bin, run_dir, run_id, &cfg.run.env, worker, generation[worker], &tx)?;
+                }
+                Some(Event::LearnerExited(status)) => break status,
+            }
+        }
+    };
+    if tty {
+        eprintln!();
+    }
+    // Workers leave on the learner's stop order; any still running after a grace period are killed.
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while Instant::now() < deadline && pids.iter().any(|&p| alive(p)) {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    for &p in &pids {
+        if alive(p) {
+            unsafe { libc::kill(p as i32, libc::SIGKILL) };
+        }
+    }
+    let learner_log = run_dir.join("logs").join("learner.log");
+    match (learner_status.code(), failure) {
+        (_, Some(f)) => {
+            eprintln!("selkd: run failed: {f}");
+            Ok(1)
+        }
+        (Some(0), None) => {
+            eprintln!("selkd: done in {:.0} s. Metrics: {}; checkpoint: {}", started.elapsed().as_secs_f64(), run_dir.join("metrics.csv").display(), run_dir.join("checkpoints").join("final").display());
+            Ok(0)
+        }
+        (Some(130), None) => {
+            eprintln!("selkd: stopped; checkpoint at {}", run_dir.join("checkpoints").join("final").display());
+            Ok(130)
+        }
+        _ => {
+            let last = std::fs::read_to_string(&learner_log).ok().and_then(|t| t.lines().rev().find(|l| !l.trim().is_empty()).map(str::to_string)).unwrap_or_default();
+            eprintln!("selkd: the learner failed ({learner_status}): {last}\nselkd: full log: {}", learner_log.display());
+            Ok(1)
+        }
+    }
+}
+
+fn alive(pid: u32) -> bool {
+    pid != 0 && unsafe { libc::kill(pid as i32, 0) } == 0 && !is_zombie(pid)
+}
+
+fn is_zombie(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat")).map(|s| s.rsplit(')').next().is_some_and(|r| r.trim_start().starts_with('Z'))).unwrap_or(true)
+}
+
+fn progress_line(p: &serde_json::Value, elapsed: Duration) -> String {
+    let f = |k: &str| p[k].as_f64().unwrap_or(0.0);
+    let scores: Vec<String> = p["scores"].as_array().map(|a| a.iter().map(|s| s.as_f64().map_or("–".into(), |v| format!("{v:.0}"))).collect()).unwrap_or_default();
+    let total = f("total_env_steps").max(1.0);
+    format!(
+        "[{:>6.0}s] env steps {}/{} ({:.0}%) | {:.0} updates/s | {:.0} env steps/s | scores [{}] | best {} | lag {:.1}",
+        elapsed.as_secs_f64(),
+        f("env_steps") as u64,
+        total as u64,
+        100.0 * f("env_steps") / total,
+        f("updates_per_s"),
+        f("env_steps_per_s"),
+        scores.join(" "),
+        p["best"].as_u64().unwrap_or(0),
+        f("policy_lag_mean"),
+    )
+}
