@@ -1,0 +1,81 @@
+//! Helpers for the end-to-end tests: find the built binaries, run `selkd train`, read run outputs.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+
+/// A binary of this workspace, built in the same profile as the tests (`cargo build --release`).
+pub fn bin(name: &str) -> PathBuf {
+    let dir = std::env::current_exe().unwrap().parent().unwrap().parent().unwrap().to_path_buf();
+    let p = dir.join(name);
+    assert!(p.exists(), "{} is missing: run `cargo build --release --workspace` before the tests", p.display());
+    p
+}
+
+pub fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("selkd-test-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A small, fast run on Pendulum for tests.
+pub fn small_run(extra: &[&str]) -> Vec<String> {
+    let mut sets: Vec<String> = [
+        "run.threads=1",
+        "algo.hidden=[32,32]",
+        "algo.critics=2",
+        "algo.utd=1",
+        "algo.batch_size=64",
+        "algo.warmup_steps=400",
+        "eval.epoch_env_steps=1000",
+        "eval.episodes=1",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    sets.extend(extra.iter().map(|s| s.to_string()));
+    sets.iter().flat_map(|s| ["--set".to_string(), s.clone()]).collect()
+}
+
+pub fn train(run_dir: &Path, sets: &[String]) -> Command {
+    let mut c = Command::new(bin("selkd"));
+    c.arg("train").arg("--run-dir").arg(run_dir).args(sets);
+    c
+}
+
+pub fn spawn(mut c: Command) -> Child {
+    c.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap()
+}
+
+pub fn run(mut c: Command) -> Output {
+    c.stdin(Stdio::null()).output().unwrap()
+}
+
+/// metrics.csv as (header, rows).
+pub fn metrics(run_dir: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
+    let text = std::fs::read_to_string(run_dir.join("metrics.csv")).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap().split(',').map(str::to_string).collect();
+    let rows = lines.map(|l| l.split(',').map(|v| v.parse::<f64>().unwrap_or(f64::NAN)).collect()).collect();
+    (header, rows)
+}
+
+pub fn column(header: &[String], rows: &[Vec<f64>], name: &str) -> Vec<f64> {
+    let i = header.iter().position(|h| h == name).unwrap_or_else(|| panic!("no column {name}"));
+    rows.iter().map(|r| r[i]).collect()
+}
+
+pub fn log(run_dir: &Path, name: &str) -> String {
+    std::fs::read_to_string(run_dir.join("logs").join(name)).unwrap_or_default()
+}
+
+pub fn assert_success(out: &Output, run_dir: &Path) {
+    assert!(
+        out.status.success(),
+        "selkd train failed ({}):\n{}\n--- learner.log ---\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr),
+        log(run_dir, "learner.log")
+    );
+}

@@ -1,0 +1,60 @@
+//! End to end: `selkd train` starts the real learner and actor-worker processes, which talk over
+//! iceoryx2, and SELKD learns Pendulum.
+
+mod common;
+use common::*;
+use selkd_envs::make;
+
+/// Mean undiscounted return of a uniform-random policy on Pendulum (the bar to beat).
+fn random_policy_return(episodes: u64) -> f64 {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(99);
+    let mut env = make("pendulum").unwrap();
+    let mut total = 0.0;
+    for e in 0..episodes {
+        env.reset(Some(1000 + e));
+        loop {
+            let s = env.step(&[rng.gen_range(-1.0..=1.0)]);
+            total += s.reward;
+            if s.terminated || s.truncated {
+                break;
+            }
+        }
+    }
+    total / episodes as f64
+}
+
+#[test]
+fn selkd_learns_pendulum_well_beyond_a_random_policy() {
+    let dir = temp_dir("learn");
+    // The shipped quick config (K = 3 actors), as a user's `selkd train` runs it.
+    let out = run(train(&dir, &[]));
+    assert_success(&out, &dir);
+    let (h, rows) = metrics(&dir);
+    let k = 3;
+    let last = rows.last().unwrap();
+    let best_final = (0..k).map(|i| column(&h, &rows, &format!("eval_return_{i}")).last().copied().unwrap()).fold(f64::MIN, f64::max);
+    let random = random_policy_return(20);
+    let first_best = (0..k).map(|i| column(&h, &rows, &format!("eval_return_{i}"))[0]).fold(f64::MIN, f64::max);
+    eprintln!("random policy {random:.0}; first evaluation (best actor) {first_best:.0}; final evaluation (best actor) {best_final:.0}");
+    assert!(random < -900.0, "sanity: a random policy scores about -1200 on Pendulum, got {random}");
+    assert!(best_final > random + 600.0, "final best evaluation {best_final:.0} is not well beyond random {random:.0}");
+    assert_eq!(last[h.iter().position(|c| c == "env_steps").unwrap()], 12000.0);
+    assert!(dir.join("checkpoints/final/model.safetensors").exists());
+    assert!(dir.join("config.toml").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bad_config_gets_a_one_line_error_and_no_run() {
+    let dir = temp_dir("badcfg");
+    for (set, key) in [("algo.subset=20", "algo.subset"), ("algo.actors=0", "algo.actors"), ("run.env=humanoidd", "pendulum"), ("algo.batch_size=-5", "batch_size")] {
+        let out = run(train(&dir.join("x"), &["--set".into(), set.into()]));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{set}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{set}: one line, got {err}");
+        assert!(err.contains(key) && !err.contains("panicked"), "{set}: {err}");
+    }
+    assert!(!dir.join("x").exists(), "no run directory for a rejected config");
+    let _ = std::fs::remove_dir_all(&dir);
+}
