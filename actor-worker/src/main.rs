@@ -10,11 +10,17 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use selkd_envs::Env;
 use selkd_policy::{Actor, ActorLayout};
-use selkd_protocol::{services, Control, Name, Report, ReportKind, Services, TransitionHeader, TransitionRow, PROTOCOL_VERSION};
+use selkd_protocol::{
+    services, Control, Name, Report, ReportKind, Services, TransitionHeader, TransitionRow,
+    PROTOCOL_VERSION,
+};
 use std::time::{Duration, Instant};
 
 #[derive(Parser, Debug)]
-#[command(version, about = "One SELKD actor: steps its env with its policy and streams transitions to the learner")]
+#[command(
+    version,
+    about = "One SELKD actor: steps its env with its policy and streams transitions to the learner"
+)]
 struct Args {
     /// Run id shared with the learner (keeps runs on one host apart).
     #[arg(long)]
@@ -37,7 +43,12 @@ struct Args {
 const EXIT_MISMATCH: i32 = 2;
 
 fn main() {
-    tracing_subscriber::fmt().with_writer(std::io::stderr).with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into())).init();
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .init();
     let args = Args::parse();
     match run(&args) {
         Ok(()) => {}
@@ -53,18 +64,24 @@ fn main() {
 fn seed_for(seed: u64, worker: usize, generation: u32, purpose: u64) -> u64 {
     let mut rng = Pcg64::seed_from_u64(seed ^ 0x5e1d_0000_0000_0000);
     let base: u64 = rng.gen();
-    base ^ ((worker as u64) << 40) ^ ((generation as u64) << 24) ^ purpose.wrapping_mul(0x9e37_79b9_7f4a_7c15)
+    base ^ ((worker as u64) << 40)
+        ^ ((generation as u64) << 24)
+        ^ purpose.wrapping_mul(0x9e37_79b9_7f4a_7c15)
 }
 
 fn run(args: &Args) -> Result<()> {
     let mut env = selkd_envs::make(&args.env)?;
     let spec = env.spec().clone();
-    let node = services::node(&format!("actor-worker-{}", args.worker)).map_err(|e| anyhow::anyhow!("starting iceoryx2 node: {e}"))?;
+    let node = services::node(&format!("actor-worker-{}", args.worker))
+        .map_err(|e| anyhow::anyhow!("starting iceoryx2 node: {e}"))?;
     let svc = Services::new(&args.run_id);
     let ctx = |what: &'static str| move |e: services::Error| anyhow::anyhow!("opening {what}: {e}");
 
     // The learner announces the run on `control` (history 1): wait for it, then check we fit.
-    let control_sub = services::control(&node, &svc).map_err(ctx("control"))?.subscriber_builder().create()?;
+    let control_sub = services::control(&node, &svc)
+        .map_err(ctx("control"))?
+        .subscriber_builder()
+        .create()?;
     let deadline = Instant::now() + Duration::from_secs_f64(args.connect_timeout);
     let mut control: Control = loop {
         if let Some(s) = control_sub.receive()? {
@@ -77,19 +94,45 @@ fn run(args: &Args) -> Result<()> {
     };
     selkd_protocol::check_peer(&control, spec.id, spec.obs_dim, spec.act_dim)?;
     if args.worker >= control.actors as usize {
-        bail!("--worker {} is out of range: the run has {} actors (0..{})", args.worker, control.actors, control.actors - 1);
+        bail!(
+            "--worker {} is out of range: the run has {} actors (0..{})",
+            args.worker,
+            control.actors,
+            control.actors - 1
+        );
     }
     let k = control.actors as usize;
-    let hidden: Vec<usize> = control.hidden[..control.hidden_layers as usize].iter().map(|&h| h as usize).collect();
+    let hidden: Vec<usize> = control.hidden[..control.hidden_layers as usize]
+        .iter()
+        .map(|&h| h as usize)
+        .collect();
     let layout = ActorLayout::new(spec.obs_dim, spec.act_dim, &hidden);
 
-    let weights_sub = services::weights(&node, &svc, args.worker).map_err(ctx("weights"))?.subscriber_builder().create()?;
+    let weights_sub = services::weights(&node, &svc, args.worker)
+        .map_err(ctx("weights"))?
+        .subscriber_builder()
+        .create()?;
     let transitions_svc = services::transitions(&node, &svc, k).map_err(ctx("transitions"))?;
-    let row = TransitionRow { obs_dim: spec.obs_dim, act_dim: spec.act_dim };
-    let publisher = transitions_svc.publisher_builder().initial_max_slice_len(row.len()).create()?;
-    let reports = services::reports(&node, &svc, k).map_err(ctx("reports"))?.publisher_builder().create()?;
-    let to_learner = services::to_learner(&node, &svc, k).map_err(ctx("to-learner"))?.notifier_builder().create()?;
-    let wake = services::to_workers(&node, &svc).map_err(ctx("to-workers"))?.listener_builder().create()?;
+    let row = TransitionRow {
+        obs_dim: spec.obs_dim,
+        act_dim: spec.act_dim,
+    };
+    let publisher = transitions_svc
+        .publisher_builder()
+        .initial_max_slice_len(row.len())
+        .create()?;
+    let reports = services::reports(&node, &svc, k)
+        .map_err(ctx("reports"))?
+        .publisher_builder()
+        .create()?;
+    let to_learner = services::to_learner(&node, &svc, k)
+        .map_err(ctx("to-learner"))?
+        .notifier_builder()
+        .create()?;
+    let wake = services::to_workers(&node, &svc)
+        .map_err(ctx("to-workers"))?
+        .listener_builder()
+        .create()?;
 
     let mut actor: Option<Actor> = None;
     let mut weights_version = 0u64;
@@ -108,7 +151,11 @@ fn run(args: &Args) -> Result<()> {
     while actor.is_none() {
         receive_weights(&mut actor, &mut weights_version)?;
         if Instant::now() > deadline {
-            bail!("the learner announced the run but sent no weights for actor {} within {} s", args.worker, args.connect_timeout);
+            bail!(
+                "the learner announced the run but sent no weights for actor {} within {} s",
+                args.worker,
+                args.connect_timeout
+            );
         }
         std::thread::sleep(Duration::from_millis(5));
     }
@@ -126,9 +173,22 @@ fn run(args: &Args) -> Result<()> {
         mean_return,
         success_rate,
     };
-    reports.send_copy(hello(ReportKind::Hello, weights_version, 0, 0, f64::NAN, f64::NAN))?;
+    reports.send_copy(hello(
+        ReportKind::Hello,
+        weights_version,
+        0,
+        0,
+        f64::NAN,
+        f64::NAN,
+    ))?;
     to_learner.notify()?;
-    tracing::info!(worker = args.worker, generation = args.generation, weights_version, "joined run {}", args.run_id);
+    tracing::info!(
+        worker = args.worker,
+        generation = args.generation,
+        weights_version,
+        "joined run {}",
+        args.run_id
+    );
 
     let seed = control.seed;
     let mut action_rng = Pcg64::seed_from_u64(seed_for(seed, args.worker, args.generation, 1));
@@ -159,8 +219,20 @@ fn run(args: &Args) -> Result<()> {
         if control.eval_epoch > evaluated && weights_version >= control.weights_version {
             // Deterministic evaluation of the current weights, on its own env and seeds.
             let epoch = control.eval_epoch;
-            let (mean_return, success_rate) = evaluate(&mut *eval_env, policy, control.eval_episodes as usize, |e| seed_for(seed, args.worker, 0, 1_000_000 + epoch * 1000 + e as u64));
-            reports.send_copy(hello(ReportKind::Evaluation, weights_version, epoch, control.eval_episodes, mean_return, success_rate))?;
+            let (mean_return, success_rate) = evaluate(
+                &mut *eval_env,
+                policy,
+                control.eval_episodes as usize,
+                |e| seed_for(seed, args.worker, 0, 1_000_000 + epoch * 1000 + e as u64),
+            );
+            reports.send_copy(hello(
+                ReportKind::Evaluation,
+                weights_version,
+                epoch,
+                control.eval_episodes,
+                mean_return,
+                success_rate,
+            ))?;
             to_learner.notify()?;
             evaluated = epoch;
             continue;
@@ -168,14 +240,24 @@ fn run(args: &Args) -> Result<()> {
         if sent < control.budget[args.worker] && fresh {
             let warmup = sent < control.warmup_steps;
             let action: Vec<f32> = if warmup {
-                (0..spec.act_dim).map(|_| action_rng.gen_range(-1.0f32..=1.0)).collect()
+                (0..spec.act_dim)
+                    .map(|_| action_rng.gen_range(-1.0f32..=1.0))
+                    .collect()
             } else {
                 policy.sample_action(&obs, &mut action_rng)
             };
             let step = env.step(&action);
             episode_return += step.reward;
             let done = step.terminated || step.truncated;
-            row.write(&mut buf, &obs, &action, step.reward as f32, &step.obs, step.terminated, step.truncated);
+            row.write(
+                &mut buf,
+                &obs,
+                &action,
+                step.reward as f32,
+                &step.obs,
+                step.terminated,
+                step.truncated,
+            );
             let mut sample = publisher.loan_slice_uninit(row.len())?;
             *sample.user_header_mut() = TransitionHeader {
                 worker: args.worker as u32,
@@ -214,7 +296,12 @@ fn run(args: &Args) -> Result<()> {
 
 /// Mean undiscounted return (and success rate, where the task reports success) of `episodes`
 /// episodes with the deterministic action `tanh(μ)`.
-fn evaluate(env: &mut dyn Env, policy: &Actor, episodes: usize, seed: impl Fn(usize) -> u64) -> (f64, f64) {
+fn evaluate(
+    env: &mut dyn Env,
+    policy: &Actor,
+    episodes: usize,
+    seed: impl Fn(usize) -> u64,
+) -> (f64, f64) {
     let (mut total, mut successes, mut with_success) = (0.0, 0usize, 0usize);
     for e in 0..episodes {
         let mut obs = env.reset(Some(seed(e)));
@@ -231,7 +318,11 @@ fn evaluate(env: &mut dyn Env, policy: &Actor, episodes: usize, seed: impl Fn(us
             obs = step.obs;
         }
     }
-    let rate = if with_success > 0 { successes as f64 / with_success as f64 } else { f64::NAN };
+    let rate = if with_success > 0 {
+        successes as f64 / with_success as f64
+    } else {
+        f64::NAN
+    };
     (total / episodes as f64, rate)
 }
 
@@ -242,7 +333,11 @@ fn learner_alive(run_id: &str) -> Result<bool> {
     Node::<ipc::Service>::list(Config::global_config(), |state| {
         if let NodeState::Alive(view) = state {
             use iceoryx2::node::NodeView;
-            if view.details().as_ref().is_some_and(|d| d.name().to_string() == name) {
+            if view
+                .details()
+                .as_ref()
+                .is_some_and(|d| d.name().to_string() == name)
+            {
                 alive = true;
             }
         }

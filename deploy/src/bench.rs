@@ -63,12 +63,26 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
                 other => anyhow::bail!("--sharing {other}: use per-update or per-critic"),
             };
             if b.m == 0 || b.m > b.n || b.k == 0 {
-                anyhow::bail!("need 1 ≤ --m ≤ --n and --k ≥ 1 (got k {}, n {}, m {})", b.k, b.n, b.m);
+                anyhow::bail!(
+                    "need 1 ≤ --m ≤ --n and --k ≥ 1 (got k {}, n {}, m {})",
+                    b.k,
+                    b.n,
+                    b.m
+                );
             }
             if b.threads > 0 {
                 tch::set_num_threads(b.threads as i32);
             }
-            let cfg = AlgoConfig { actors: b.k, critics: b.n, subset: b.m, utd: b.g, batch_size: b.batch, hidden: vec![b.hidden, b.hidden], sharing, ..AlgoConfig::default() };
+            let cfg = AlgoConfig {
+                actors: b.k,
+                critics: b.n,
+                subset: b.m,
+                utd: b.g,
+                batch_size: b.batch,
+                hidden: vec![b.hidden, b.hidden],
+                sharing,
+                ..AlgoConfig::default()
+            };
             let device = selkd_learner::service::parse_device(&b.device)?;
             let r = selkd_learner::bench::learner(&cfg, b.obs, b.act, device, b.rounds);
             println!(

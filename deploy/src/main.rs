@@ -10,7 +10,10 @@ mod train;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser, Debug)]
-#[command(version, about = "SELKD: skill enhancement learning with knowledge distillation, on one host")]
+#[command(
+    version,
+    about = "SELKD: skill enhancement learning with knowledge distillation, on one host"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

@@ -37,13 +37,20 @@ pub struct TrainArgs {
 
 enum Event {
     Progress(serde_json::Value),
-    WorkerExited { worker: usize, generation: u32, code: Option<i32>, signal: Option<i32> },
+    WorkerExited {
+        worker: usize,
+        generation: u32,
+        code: Option<i32>,
+        signal: Option<i32>,
+    },
     LearnerExited(std::process::ExitStatus),
 }
 
 pub fn run(args: TrainArgs) -> Result<i32> {
     let text = match &args.config {
-        Some(p) => std::fs::read_to_string(p).with_context(|| format!("reading config {}", p.display()))?,
+        Some(p) => {
+            std::fs::read_to_string(p).with_context(|| format!("reading config {}", p.display()))?
+        }
         None => QUICK_CONFIG.to_string(),
     };
     let cfg = Config::from_toml_with_overrides(&text, &args.set)?;
@@ -52,33 +59,88 @@ pub fn run(args: TrainArgs) -> Result<i32> {
             bail!("--resume {}: not a checkpoint directory (no state.json); pick one under RUN/checkpoints/", r.display());
         }
     }
-    let bin_dir = std::env::current_exe()?.parent().map(Path::to_path_buf).context("locating selkd's directory")?;
+    let bin_dir = std::env::current_exe()?
+        .parent()
+        .map(Path::to_path_buf)
+        .context("locating selkd's directory")?;
     let (learner_bin, worker_bin) = (bin_dir.join("learner"), bin_dir.join("actor-worker"));
     for b in [&learner_bin, &worker_bin] {
         if !b.exists() {
-            bail!("cannot find {} next to selkd; build all binaries with `cargo build --release`", b.display());
+            bail!(
+                "cannot find {} next to selkd; build all binaries with `cargo build --release`",
+                b.display()
+            );
         }
     }
-    let stamp = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH)?.as_secs();
-    let run_dir = args.run_dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("{}-{stamp}", cfg.run.env)));
-    std::fs::create_dir_all(run_dir.join("logs")).with_context(|| format!("creating run directory {}", run_dir.display()))?;
+    let stamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)?
+        .as_secs();
+    let run_dir = args
+        .run_dir
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("runs").join(format!("{}-{stamp}", cfg.run.env)));
+    std::fs::create_dir_all(run_dir.join("logs"))
+        .with_context(|| format!("creating run directory {}", run_dir.display()))?;
     std::fs::write(run_dir.join("config.toml"), cfg.to_toml())?;
-    let run_id = format!("r{}x{:x}", std::process::id(), std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH)?.subsec_nanos());
-    eprintln!("selkd: run {run_id}: {} with K={} actors, N={} critics ({:?} mode) → {}", cfg.run.env, cfg.algo.actors, cfg.algo.critics, cfg.run.mode, run_dir.display());
+    let run_id = format!(
+        "r{}x{:x}",
+        std::process::id(),
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)?
+            .subsec_nanos()
+    );
+    eprintln!(
+        "selkd: run {run_id}: {} with K={} actors, N={} critics ({:?} mode) → {}",
+        cfg.run.env,
+        cfg.algo.actors,
+        cfg.algo.critics,
+        cfg.run.mode,
+        run_dir.display()
+    );
 
-    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
-    rt.block_on(supervise(&args, &cfg, &run_dir, &run_id, &learner_bin, &worker_bin))
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(supervise(
+        &args,
+        &cfg,
+        &run_dir,
+        &run_id,
+        &learner_bin,
+        &worker_bin,
+    ))
 }
 
 fn log_file(run_dir: &Path, name: &str) -> Result<std::fs::File> {
     let p = run_dir.join("logs").join(name);
-    std::fs::OpenOptions::new().create(true).append(true).open(&p).with_context(|| format!("opening {}", p.display()))
+    std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&p)
+        .with_context(|| format!("opening {}", p.display()))
 }
 
-fn spawn_worker(bin: &Path, run_dir: &Path, run_id: &str, env: &str, worker: usize, generation: u32, tx: &mpsc::UnboundedSender<Event>) -> Result<u32> {
+fn spawn_worker(
+    bin: &Path,
+    run_dir: &Path,
+    run_id: &str,
+    env: &str,
+    worker: usize,
+    generation: u32,
+    tx: &mpsc::UnboundedSender<Event>,
+) -> Result<u32> {
     let log = log_file(run_dir, &format!("worker-{worker}.log"))?;
     let mut child: Child = Command::new(bin)
-        .args(["--run-id", run_id, "--worker", &worker.to_string(), "--env", env, "--generation", &generation.to_string()])
+        .args([
+            "--run-id",
+            run_id,
+            "--worker",
+            &worker.to_string(),
+            "--env",
+            env,
+            "--generation",
+            &generation.to_string(),
+        ])
         .stdin(Stdio::null())
         .stdout(log.try_clone()?)
         .stderr(log)
@@ -90,16 +152,35 @@ fn spawn_worker(bin: &Path, run_dir: &Path, run_id: &str, env: &str, worker: usi
     tokio::spawn(async move {
         use std::os::unix::process::ExitStatusExt;
         let status = child.wait().await;
-        let (code, signal) = status.map(|s| (s.code(), s.signal())).unwrap_or((None, None));
-        let _ = tx.send(Event::WorkerExited { worker, generation, code, signal });
+        let (code, signal) = status
+            .map(|s| (s.code(), s.signal()))
+            .unwrap_or((None, None));
+        let _ = tx.send(Event::WorkerExited {
+            worker,
+            generation,
+            code,
+            signal,
+        });
     });
     Ok(pid)
 }
 
-async fn supervise(args: &TrainArgs, cfg: &Config, run_dir: &Path, run_id: &str, learner_bin: &Path, worker_bin: &Path) -> Result<i32> {
+async fn supervise(
+    args: &TrainArgs,
+    cfg: &Config,
+    run_dir: &Path,
+    run_id: &str,
+    learner_bin: &Path,
+    worker_bin: &Path,
+) -> Result<i32> {
     let (tx, mut rx) = mpsc::unbounded_channel::<Event>();
     let mut learner_cmd = Command::new(learner_bin);
-    learner_cmd.arg("--config").arg(run_dir.join("config.toml")).arg("--run-dir").arg(run_dir).args(["--run-id", run_id]);
+    learner_cmd
+        .arg("--config")
+        .arg(run_dir.join("config.toml"))
+        .arg("--run-dir")
+        .arg(run_dir)
+        .args(["--run-id", run_id]);
     if let Some(r) = &args.resume {
         learner_cmd.arg("--resume").arg(r);
     }
@@ -211,16 +292,35 @@ async fn supervise(args: &TrainArgs, cfg: &Config, run_dir: &Path, run_id: &str,
             Ok(1)
         }
         (Some(0), None) => {
-            eprintln!("selkd: done in {:.0} s. Metrics: {}; checkpoint: {}", started.elapsed().as_secs_f64(), run_dir.join("metrics.csv").display(), run_dir.join("checkpoints").join("final").display());
+            eprintln!(
+                "selkd: done in {:.0} s. Metrics: {}; checkpoint: {}",
+                started.elapsed().as_secs_f64(),
+                run_dir.join("metrics.csv").display(),
+                run_dir.join("checkpoints").join("final").display()
+            );
             Ok(0)
         }
         (Some(130), None) => {
-            eprintln!("selkd: stopped; checkpoint at {}", run_dir.join("checkpoints").join("final").display());
+            eprintln!(
+                "selkd: stopped; checkpoint at {}",
+                run_dir.join("checkpoints").join("final").display()
+            );
             Ok(130)
         }
         _ => {
-            let last = std::fs::read_to_string(&learner_log).ok().and_then(|t| t.lines().rev().find(|l| !l.trim().is_empty()).map(str::to_string)).unwrap_or_default();
-            eprintln!("selkd: the learner failed ({learner_status}): {last}\nselkd: full log: {}", learner_log.display());
+            let last = std::fs::read_to_string(&learner_log)
+                .ok()
+                .and_then(|t| {
+                    t.lines()
+                        .rev()
+                        .find(|l| !l.trim().is_empty())
+                        .map(str::to_string)
+                })
+                .unwrap_or_default();
+            eprintln!(
+                "selkd: the learner failed ({learner_status}): {last}\nselkd: full log: {}",
+                learner_log.display()
+            );
             Ok(1)
         }
     }
@@ -231,12 +331,25 @@ fn alive(pid: u32) -> bool {
 }
 
 fn is_zombie(pid: u32) -> bool {
-    std::fs::read_to_string(format!("/proc/{pid}/stat")).map(|s| s.rsplit(')').next().is_some_and(|r| r.trim_start().starts_with('Z'))).unwrap_or(true)
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .map(|s| {
+            s.rsplit(')')
+                .next()
+                .is_some_and(|r| r.trim_start().starts_with('Z'))
+        })
+        .unwrap_or(true)
 }
 
 fn progress_line(p: &serde_json::Value, elapsed: Duration) -> String {
     let f = |k: &str| p[k].as_f64().unwrap_or(0.0);
-    let scores: Vec<String> = p["scores"].as_array().map(|a| a.iter().map(|s| s.as_f64().map_or("–".into(), |v| format!("{v:.0}"))).collect()).unwrap_or_default();
+    let scores: Vec<String> = p["scores"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .map(|s| s.as_f64().map_or("–".into(), |v| format!("{v:.0}")))
+                .collect()
+        })
+        .unwrap_or_default();
     let total = f("total_env_steps").max(1.0);
     format!(
         "[{:>6.0}s] env steps {}/{} ({:.0}%) | {:.0} updates/s | {:.0} env steps/s | scores [{}] | best {} | lag {:.1}",

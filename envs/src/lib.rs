@@ -66,7 +66,10 @@ pub fn make(name: &str) -> Result<Box<dyn Env>, EnvError> {
         .iter()
         .find(|(n, _)| *n == key)
         .map(|(_, make)| make())
-        .ok_or_else(|| EnvError::Unknown { name: name.to_string(), known: names().join(", ") })
+        .ok_or_else(|| EnvError::Unknown {
+            name: name.to_string(),
+            known: names().join(", "),
+        })
 }
 
 /// The spec of a registered env, without keeping the env.

@@ -30,7 +30,12 @@ impl Default for Pendulum {
 impl Pendulum {
     pub fn new() -> Self {
         Self {
-            spec: EnvSpec { id: "pendulum", obs_dim: 3, act_dim: 1, max_episode_steps: 200 },
+            spec: EnvSpec {
+                id: "pendulum",
+                obs_dim: 3,
+                act_dim: 1,
+                max_episode_steps: 200,
+            },
             theta: 0.0,
             theta_dot: 0.0,
             t: 0,
@@ -51,7 +56,11 @@ impl Pendulum {
     }
 
     fn obs(&self) -> Vec<f32> {
-        vec![self.theta.cos() as f32, self.theta.sin() as f32, self.theta_dot as f32]
+        vec![
+            self.theta.cos() as f32,
+            self.theta.sin() as f32,
+            self.theta_dot as f32,
+        ]
     }
 }
 
@@ -100,9 +109,15 @@ mod tests {
     use serde_json::Value;
 
     fn golden() -> Vec<Value> {
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/golden/pendulum_v1.jsonl");
-        let text = std::fs::read_to_string(path).expect("shared/golden/pendulum_v1.jsonl beside the clone");
-        text.lines().map(|l| serde_json::from_str(l).unwrap()).collect()
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../shared/golden/pendulum_v1.jsonl"
+        );
+        let text = std::fs::read_to_string(path)
+            .expect("shared/golden/pendulum_v1.jsonl beside the clone");
+        text.lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect()
     }
 
     fn f(v: &Value) -> f64 {

@@ -14,7 +14,14 @@ pub struct BenchResult {
 
 /// Fills a replay buffer with random transitions, runs one warm-up round, then times `rounds`
 /// rounds (G critic updates and one update of every actor each).
-pub fn learner(cfg: &AlgoConfig, obs: usize, act: usize, device: Device, rounds: usize) -> BenchResult {
+pub fn learner(
+    cfg: &AlgoConfig,
+    obs: usize,
+    act: usize,
+    device: Device,
+    rounds: usize,
+) -> BenchResult {
+    crate::keep_freed_memory();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
     let mut replay = ReplayBuffer::new(cfg.replay_capacity, obs, act, device);
     for _ in 0..cfg.replay_capacity.min(100_000) {
@@ -31,7 +38,10 @@ pub fn learner(cfg: &AlgoConfig, obs: usize, act: usize, device: Device, rounds:
     }
     sync(device);
     let dt = t0.elapsed().as_secs_f64();
-    BenchResult { critic_updates_per_sec: (rounds * cfg.utd) as f64 / dt, rounds_per_sec: rounds as f64 / dt }
+    BenchResult {
+        critic_updates_per_sec: (rounds * cfg.utd) as f64 / dt,
+        rounds_per_sec: rounds as f64 / dt,
+    }
 }
 
 fn sync(device: Device) {

@@ -40,7 +40,11 @@ fn tensors<'a>(s: &'a Selkd) -> Vec<(String, &'a Tensor)> {
     out.extend(s.critics.named_params("critics"));
     out.extend(s.target_critics.named_params("target_critics"));
     out.push(("log_alpha".into(), &s.log_alpha));
-    for (name, opt) in [("actor", &s.actor_opt), ("critic", &s.critic_opt), ("alpha", &s.alpha_opt)] {
+    for (name, opt) in [
+        ("actor", &s.actor_opt),
+        ("critic", &s.critic_opt),
+        ("alpha", &s.alpha_opt),
+    ] {
         for (i, (m, v)) in opt.exp_avg.iter().zip(&opt.exp_avg_sq).enumerate() {
             out.push((format!("adam.{name}.{i}.exp_avg"), m));
             out.push((format!("adam.{name}.{i}.exp_avg_sq"), v));
@@ -50,32 +54,54 @@ fn tensors<'a>(s: &'a Selkd) -> Vec<(String, &'a Tensor)> {
 }
 
 /// Writes a checkpoint to `dir` (via a temporary directory, so a crash never leaves half of one).
-pub fn save(dir: &Path, selkd: &Selkd, replay: Option<&mut ReplayBuffer>, state: &TrainingState) -> Result<()> {
+pub fn save(
+    dir: &Path,
+    selkd: &Selkd,
+    replay: Option<&mut ReplayBuffer>,
+    state: &TrainingState,
+) -> Result<()> {
     let tmp = dir.with_extension("partial");
     let _ = std::fs::remove_dir_all(&tmp);
     std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
-    let named: Vec<(String, Tensor)> = tensors(selkd).into_iter().map(|(n, t)| (n, t.detach().to_device(tch::Device::Cpu).contiguous())).collect();
-    Tensor::write_safetensors(&named, tmp.join("model.safetensors")).context("writing model.safetensors")?;
+    let named: Vec<(String, Tensor)> = tensors(selkd)
+        .into_iter()
+        .map(|(n, t)| (n, t.detach().to_device(tch::Device::Cpu).contiguous()))
+        .collect();
+    Tensor::write_safetensors(&named, tmp.join("model.safetensors"))
+        .context("writing model.safetensors")?;
     if let Some(replay) = replay {
         let rows = replay.export().to_device(tch::Device::Cpu).contiguous();
-        Tensor::write_safetensors(&[("rows", rows)], tmp.join("replay.safetensors")).context("writing replay.safetensors")?;
+        Tensor::write_safetensors(&[("rows", rows)], tmp.join("replay.safetensors"))
+            .context("writing replay.safetensors")?;
     }
-    std::fs::write(tmp.join("state.json"), serde_json::to_string_pretty(state)?).context("writing state.json")?;
+    std::fs::write(tmp.join("state.json"), serde_json::to_string_pretty(state)?)
+        .context("writing state.json")?;
     let _ = std::fs::remove_dir_all(dir);
-    std::fs::rename(&tmp, dir).with_context(|| format!("moving checkpoint into {}", dir.display()))?;
+    std::fs::rename(&tmp, dir)
+        .with_context(|| format!("moving checkpoint into {}", dir.display()))?;
     Ok(())
 }
 
 /// Loads a checkpoint into an already built `selkd` (same config) and, when it holds one, the replay buffer.
 pub fn load(dir: &Path, selkd: &mut Selkd, replay: &mut ReplayBuffer) -> Result<TrainingState> {
     let state: TrainingState = serde_json::from_str(
-        &std::fs::read_to_string(dir.join("state.json")).with_context(|| format!("{} is not a checkpoint directory (no state.json)", dir.display()))?,
+        &std::fs::read_to_string(dir.join("state.json")).with_context(|| {
+            format!(
+                "{} is not a checkpoint directory (no state.json)",
+                dir.display()
+            )
+        })?,
     )
     .context("reading state.json")?;
-    let stored: HashMap<String, Tensor> = Tensor::read_safetensors(dir.join("model.safetensors")).context("reading model.safetensors")?.into_iter().collect();
+    let stored: HashMap<String, Tensor> = Tensor::read_safetensors(dir.join("model.safetensors"))
+        .context("reading model.safetensors")?
+        .into_iter()
+        .collect();
     tch::no_grad(|| -> Result<()> {
         for (name, t) in tensors(selkd) {
-            let src = stored.get(&name).with_context(|| format!("checkpoint lacks tensor `{name}`"))?;
+            let src = stored
+                .get(&name)
+                .with_context(|| format!("checkpoint lacks tensor `{name}`"))?;
             if src.size() != t.size() {
                 bail!("checkpoint tensor `{name}` has shape {:?}, this config needs {:?}; resume with the checkpoint's own config", src.size(), t.size());
             }
@@ -87,7 +113,14 @@ pub fn load(dir: &Path, selkd: &mut Selkd, replay: &mut ReplayBuffer) -> Result<
     selkd.rng = state.rng.clone();
     selkd.critic_updates = state.critic_updates;
     selkd.actor_updates = state.actor_updates;
-    for (opt, steps) in [&mut selkd.actor_opt, &mut selkd.critic_opt, &mut selkd.alpha_opt].into_iter().zip(state.adam_steps) {
+    for (opt, steps) in [
+        &mut selkd.actor_opt,
+        &mut selkd.critic_opt,
+        &mut selkd.alpha_opt,
+    ]
+    .into_iter()
+    .zip(state.adam_steps)
+    {
         opt.step = steps;
     }
     let replay_file = dir.join("replay.safetensors");

@@ -105,7 +105,12 @@ pub struct AsyncConfig {
 
 impl Default for Config {
     fn default() -> Self {
-        Self { run: RunConfig::default(), algo: AlgoConfig::default(), eval: EvalConfig::default(), asynchronous: AsyncConfig::default() }
+        Self {
+            run: RunConfig::default(),
+            algo: AlgoConfig::default(),
+            eval: EvalConfig::default(),
+            asynchronous: AsyncConfig::default(),
+        }
     }
 }
 
@@ -151,13 +156,20 @@ impl Default for AlgoConfig {
 
 impl Default for EvalConfig {
     fn default() -> Self {
-        Self { epoch_env_steps: 1000, episodes: 10, score_window: 10 }
+        Self {
+            epoch_env_steps: 1000,
+            episodes: 10,
+            score_window: 10,
+        }
     }
 }
 
 impl Default for AsyncConfig {
     fn default() -> Self {
-        Self { ratio_tolerance: 100.0, max_policy_lag: 4 }
+        Self {
+            ratio_tolerance: 100.0,
+            max_policy_lag: 4,
+        }
     }
 }
 
@@ -172,11 +184,14 @@ pub enum ConfigError {
 impl Config {
     /// Parses TOML text, then applies `key=value` overrides (`algo.critics=4`), then validates.
     pub fn from_toml_with_overrides(text: &str, overrides: &[String]) -> Result<Self, ConfigError> {
-        let mut value: toml::Table = toml::from_str(text).map_err(|e| ConfigError::Parse(one_line(&e.to_string())))?;
+        let mut value: toml::Table =
+            toml::from_str(text).map_err(|e| ConfigError::Parse(one_line(&e.to_string())))?;
         for o in overrides {
             apply_override(&mut value, o)?;
         }
-        let cfg: Config = toml::Value::Table(value).try_into().map_err(|e: toml::de::Error| ConfigError::Parse(one_line(&e.to_string())))?;
+        let cfg: Config = toml::Value::Table(value)
+            .try_into()
+            .map_err(|e: toml::de::Error| ConfigError::Parse(one_line(&e.to_string())))?;
         cfg.validate()?;
         Ok(cfg)
     }
@@ -190,7 +205,11 @@ impl Config {
         let a = &self.algo;
         let bad = |m: String| Err(ConfigError::Invalid(m));
         if selkd_envs::spec(&self.run.env).is_err() {
-            return bad(format!("run.env = \"{}\" is not a known env; choose one of: {}", self.run.env, selkd_envs::names().join(", ")));
+            return bad(format!(
+                "run.env = \"{}\" is not a known env; choose one of: {}",
+                self.run.env,
+                selkd_envs::names().join(", ")
+            ));
         }
         if a.actors == 0 {
             return bad("algo.actors (K) must be at least 1".into());
@@ -199,13 +218,21 @@ impl Config {
             return bad("algo.critics (N) must be at least 1".into());
         }
         if a.subset == 0 || a.subset > a.critics {
-            return bad(format!("algo.subset (M = {}) must be between 1 and algo.critics (N = {})", a.subset, a.critics));
+            return bad(format!(
+                "algo.subset (M = {}) must be between 1 and algo.critics (N = {})",
+                a.subset, a.critics
+            ));
         }
         if a.utd == 0 || a.batch_size == 0 || a.replay_capacity == 0 {
-            return bad("algo.utd, algo.batch_size and algo.replay_capacity must be at least 1".into());
+            return bad(
+                "algo.utd, algo.batch_size and algo.replay_capacity must be at least 1".into(),
+            );
         }
         if a.hidden.is_empty() || a.hidden.contains(&0) {
-            return bad(format!("algo.hidden = {:?} needs at least one layer, each of size ≥ 1", a.hidden));
+            return bad(format!(
+                "algo.hidden = {:?} needs at least one layer, each of size ≥ 1",
+                a.hidden
+            ));
         }
         if !(a.lr > 0.0 && a.lr.is_finite() && a.alpha_lr > 0.0 && a.alpha_lr.is_finite()) {
             return bad("algo.lr and algo.alpha_lr must be positive numbers".into());
@@ -221,7 +248,9 @@ impl Config {
         }
         if let Some(alpha) = a.fixed_alpha {
             if !(alpha >= 0.0 && alpha.is_finite()) {
-                return bad(format!("algo.fixed_alpha = {alpha} must be ≥ 0 (or leave it out for automatic tuning)"));
+                return bad(format!(
+                    "algo.fixed_alpha = {alpha} must be ≥ 0 (or leave it out for automatic tuning)"
+                ));
             }
         }
         if a.warmup_steps < a.batch_size as u64 {
@@ -230,15 +259,26 @@ impl Config {
         if self.run.total_env_steps == 0 {
             return bad("run.total_env_steps must be at least 1".into());
         }
-        if self.eval.epoch_env_steps == 0 || self.eval.episodes == 0 || self.eval.score_window == 0 {
-            return bad("eval.epoch_env_steps, eval.episodes and eval.score_window must be at least 1".into());
+        if self.eval.epoch_env_steps == 0 || self.eval.episodes == 0 || self.eval.score_window == 0
+        {
+            return bad(
+                "eval.epoch_env_steps, eval.episodes and eval.score_window must be at least 1"
+                    .into(),
+            );
         }
         if self.eval.epoch_env_steps % a.actors as u64 != 0 {
             return bad(format!("eval.epoch_env_steps ({}) must be a multiple of algo.actors ({}) so every actor evaluates at the same round", self.eval.epoch_env_steps, a.actors));
         }
         let dev = self.run.device.as_str();
-        if !(dev == "cpu" || dev == "cuda" || dev.strip_prefix("cuda:").is_some_and(|n| n.parse::<usize>().is_ok())) {
-            return bad(format!("run.device = \"{dev}\" must be cpu, cuda or cuda:N"));
+        if !(dev == "cpu"
+            || dev == "cuda"
+            || dev
+                .strip_prefix("cuda:")
+                .is_some_and(|n| n.parse::<usize>().is_ok()))
+        {
+            return bad(format!(
+                "run.device = \"{dev}\" must be cpu, cuda or cuda:N"
+            ));
         }
         if !(self.asynchronous.ratio_tolerance >= 1.0) {
             return bad("async.ratio_tolerance must be at least 1 (critic updates)".into());
@@ -268,9 +308,11 @@ fn one_line(s: &str) -> String {
 
 /// `section.key=value`; the value is read as TOML (number, bool, array) or else as a string.
 fn apply_override(table: &mut toml::Table, item: &str) -> Result<(), ConfigError> {
-    let (key, raw) = item
-        .split_once('=')
-        .ok_or_else(|| ConfigError::Invalid(format!("--set {item}: expected key=value, e.g. --set algo.critics=4")))?;
+    let (key, raw) = item.split_once('=').ok_or_else(|| {
+        ConfigError::Invalid(format!(
+            "--set {item}: expected key=value, e.g. --set algo.critics=4"
+        ))
+    })?;
     let value: toml::Value = toml::from_str::<toml::Table>(&format!("v = {raw}"))
         .ok()
         .and_then(|mut t| t.remove("v"))
@@ -295,14 +337,33 @@ mod tests {
 
     fn err(text: &str, sets: &[&str]) -> String {
         let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
-        Config::from_toml_with_overrides(text, &sets).unwrap_err().to_string()
+        Config::from_toml_with_overrides(text, &sets)
+            .unwrap_err()
+            .to_string()
     }
 
     #[test]
     fn defaults_are_the_papers_table_1_and_valid() {
         let c = Config::from_toml_with_overrides("", &[]).unwrap();
-        assert_eq!((c.algo.actors, c.algo.critics, c.algo.subset, c.algo.utd, c.algo.batch_size), (5, 10, 2, 20, 256));
-        assert_eq!((c.algo.lr, c.algo.gamma, c.algo.polyak, c.algo.replay_capacity), (3e-4, 0.99, 0.995, 100_000));
+        assert_eq!(
+            (
+                c.algo.actors,
+                c.algo.critics,
+                c.algo.subset,
+                c.algo.utd,
+                c.algo.batch_size
+            ),
+            (5, 10, 2, 20, 256)
+        );
+        assert_eq!(
+            (
+                c.algo.lr,
+                c.algo.gamma,
+                c.algo.polyak,
+                c.algo.replay_capacity
+            ),
+            (3e-4, 0.99, 0.995, 100_000)
+        );
         let back = Config::from_toml_with_overrides(&c.to_toml(), &[]).unwrap();
         assert_eq!(back, c);
     }
@@ -316,14 +377,23 @@ mod tests {
         assert!(err("[algo]\ncritcs = 3\n", &[]).contains("critcs"));
         assert!(err("", &["algo.target=\"max-mean\""]).contains("max-min"));
         assert!(err("", &["nonsense"]).contains("key=value"));
-        for e in [err("", &["algo.subset=11"]), err("[algo]\ncritcs = 3\n", &[])] {
+        for e in [
+            err("", &["algo.subset=11"]),
+            err("[algo]\ncritcs = 3\n", &[]),
+        ] {
             assert!(!e.contains('\n'), "one line: {e}");
         }
     }
 
     #[test]
     fn overrides_parse_numbers_lists_and_strings() {
-        let sets = ["algo.hidden=[64, 64]", "run.mode=async", "algo.kd_weight=0.5", "algo.sharing=per-critic"].map(String::from);
+        let sets = [
+            "algo.hidden=[64, 64]",
+            "run.mode=async",
+            "algo.kd_weight=0.5",
+            "algo.sharing=per-critic",
+        ]
+        .map(String::from);
         let c = Config::from_toml_with_overrides("", &sets).unwrap();
         assert_eq!(c.algo.hidden, vec![64, 64]);
         assert_eq!(c.run.mode, Mode::Async);

@@ -23,7 +23,12 @@ mod tests {
     /// Jacobian terms cancel, which is the point of the claim that tanh leaves the KL unchanged).
     #[test]
     fn closed_form_matches_monte_carlo_of_squashed_policies() {
-        let (mu_i, ls_i, mu_b, ls_b) = ([0.2f64, -0.5], [-0.3f64, 0.1], [0.6f64, -0.1], [-0.6f64, 0.3]);
+        let (mu_i, ls_i, mu_b, ls_b) = (
+            [0.2f64, -0.5],
+            [-0.3f64, 0.1],
+            [0.6f64, -0.1],
+            [-0.6f64, 0.3],
+        );
         let t = |v: &[f64]| Tensor::from_slice(v).to_kind(Kind::Double);
         let closed = gaussian_kl(&t(&mu_i), &t(&ls_i), &t(&mu_b), &t(&ls_b)).double_value(&[]);
 
@@ -38,7 +43,9 @@ mod tests {
         for _ in 0..n {
             let mut diff = 0.0;
             for d in 0..2 {
-                let u = Normal::new(mu_i[d], ls_i[d].exp()).unwrap().sample(&mut rng);
+                let u = Normal::new(mu_i[d], ls_i[d].exp())
+                    .unwrap()
+                    .sample(&mut rng);
                 let a = u.tanh();
                 if a.abs() >= 1.0 {
                     continue;

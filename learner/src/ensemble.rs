@@ -25,7 +25,9 @@ impl Ensemble {
             .map(|w| {
                 let (n_in, n_out) = (w[0], w[1]);
                 let bound = 1.0 / (n_in as f32).sqrt();
-                let mut draw = |n: usize| -> Vec<f32> { (0..n).map(|_| rng.gen_range(-bound..bound)).collect() };
+                let mut draw = |n: usize| -> Vec<f32> {
+                    (0..n).map(|_| rng.gen_range(-bound..bound)).collect()
+                };
                 let wv = draw(members * n_in * n_out);
                 let bv = draw(members * n_out);
                 StackedLinear {
@@ -76,27 +78,48 @@ impl Ensemble {
 
     fn map(&self, f: impl Fn(&Tensor) -> Tensor) -> Ensemble {
         Ensemble {
-            layers: self.layers.iter().map(|l| StackedLinear { weight: f(&l.weight), bias: f(&l.bias) }).collect(),
+            layers: self
+                .layers
+                .iter()
+                .map(|l| StackedLinear {
+                    weight: f(&l.weight),
+                    bias: f(&l.bias),
+                })
+                .collect(),
         }
     }
 
     pub fn params(&self) -> Vec<&Tensor> {
-        self.layers.iter().flat_map(|l| [&l.weight, &l.bias]).collect()
+        self.layers
+            .iter()
+            .flat_map(|l| [&l.weight, &l.bias])
+            .collect()
     }
 
     pub fn named_params(&self, prefix: &str) -> Vec<(String, &Tensor)> {
         self.layers
             .iter()
             .enumerate()
-            .flat_map(|(i, l)| [(format!("{prefix}.{i}.weight"), &l.weight), (format!("{prefix}.{i}.bias"), &l.bias)])
+            .flat_map(|(i, l)| {
+                [
+                    (format!("{prefix}.{i}.weight"), &l.weight),
+                    (format!("{prefix}.{i}.bias"), &l.bias),
+                ]
+            })
             .collect()
     }
 
     /// Member `i`'s parameters as one flat vector, in `selkd_policy`'s layout
     /// (each layer's weight `[in][out]` row-major, then its bias).
     pub fn member_flat(&self, i: i64) -> Vec<f32> {
-        let parts: Vec<Tensor> = self.params().iter().map(|t| t.detach().get(i).reshape([-1])).collect();
-        let flat = Tensor::cat(&parts, 0).to_device(Device::Cpu).to_kind(Kind::Float);
+        let parts: Vec<Tensor> = self
+            .params()
+            .iter()
+            .map(|t| t.detach().get(i).reshape([-1]))
+            .collect();
+        let flat = Tensor::cat(&parts, 0)
+            .to_device(Device::Cpu)
+            .to_kind(Kind::Float);
         Vec::<f32>::try_from(&flat).expect("f32 parameters")
     }
 
@@ -123,7 +146,10 @@ impl Ensemble {
 
 fn param(values: &[f32], shape: &[usize], device: Device) -> Tensor {
     let shape: Vec<i64> = shape.iter().map(|&d| d as i64).collect();
-    Tensor::from_slice(values).view(shape.as_slice()).to_device(device).set_requires_grad(true)
+    Tensor::from_slice(values)
+        .view(shape.as_slice())
+        .to_device(device)
+        .set_requires_grad(true)
 }
 
 #[cfg(test)]
@@ -137,10 +163,13 @@ mod tests {
         let mut rng = Pcg64::seed_from_u64(3);
         let ens = Ensemble::new(3, &[4, 8, 8, 2 * 2], Device::Cpu, &mut rng);
         let obs: Vec<f32> = vec![0.3, -1.2, 0.7, 2.0];
-        let x = Tensor::from_slice(&obs).view([1, 1, 4]).expand([3, 1, 4], false);
+        let x = Tensor::from_slice(&obs)
+            .view([1, 1, 4])
+            .expand([3, 1, 4], false);
         let out = ens.forward(&x);
         for i in 0..3 {
-            let actor = Actor::from_flat(ActorLayout::new(4, 2, &[8, 8]), ens.member_flat(i)).unwrap();
+            let actor =
+                Actor::from_flat(ActorLayout::new(4, 2, &[8, 8]), ens.member_flat(i)).unwrap();
             let (mu, ls) = actor.mean_log_std(&obs);
             let row = Vec::<f32>::try_from(out.get(i).reshape([-1])).unwrap();
             for d in 0..2 {

@@ -10,7 +10,10 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 #[derive(Parser, Debug)]
-#[command(version, about = "The SELKD learner: trains K actors and N critics from the transitions of actor-worker processes")]
+#[command(
+    version,
+    about = "The SELKD learner: trains K actors and N critics from the transitions of actor-worker processes"
+)]
 struct Args {
     /// Config file (TOML); defaults apply to every key it leaves out.
     #[arg(long)]
@@ -30,7 +33,12 @@ struct Args {
 }
 
 fn main() {
-    tracing_subscriber::fmt().with_writer(std::io::stderr).with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into())).init();
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .init();
     let args = Args::parse();
     match run(&args) {
         Ok(Outcome::Finished) => {}
@@ -43,8 +51,11 @@ fn main() {
 }
 
 fn run(args: &Args) -> Result<Outcome> {
+    selkd_learner::keep_freed_memory();
     let text = match &args.config {
-        Some(p) => std::fs::read_to_string(p).with_context(|| format!("reading config {}", p.display()))?,
+        Some(p) => {
+            std::fs::read_to_string(p).with_context(|| format!("reading config {}", p.display()))?
+        }
         None => String::new(),
     };
     let cfg = Config::from_toml_with_overrides(&text, &args.set)?;

@@ -34,14 +34,20 @@ impl Adam {
         let bias1 = 1.0 - self.beta1.powi(self.step as i32);
         let bias2 = 1.0 - self.beta2.powi(self.step as i32);
         tch::no_grad(|| {
-            for ((p, m), v) in params.iter().zip(&mut self.exp_avg).zip(&mut self.exp_avg_sq) {
+            for ((p, m), v) in params
+                .iter()
+                .zip(&mut self.exp_avg)
+                .zip(&mut self.exp_avg_sq)
+            {
                 let mut p = p.shallow_clone();
                 let g = p.grad();
                 if !g.defined() {
                     continue;
                 }
                 let _ = m.lerp_(&g, 1.0 - self.beta1);
-                let _ = v.g_mul_scalar_(self.beta2).addcmul_(&g, &(&g * (1.0 - self.beta2)));
+                let _ = v
+                    .g_mul_scalar_(self.beta2)
+                    .addcmul_(&g, &(&g * (1.0 - self.beta2)));
                 let denom = (v.sqrt() / bias2.sqrt()) + self.eps;
                 let _ = p.g_sub_(&(&*m / denom * (self.lr / bias1)));
                 p.zero_grad();

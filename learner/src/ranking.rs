@@ -17,7 +17,13 @@ pub struct Ranking {
 
 impl Ranking {
     pub fn new(actors: usize, window: usize) -> Self {
-        Self { evaluation: vec![None; actors], last_eval_epoch: vec![0; actors], training: vec![VecDeque::new(); actors], window, version: 0 }
+        Self {
+            evaluation: vec![None; actors],
+            last_eval_epoch: vec![0; actors],
+            training: vec![VecDeque::new(); actors],
+            window,
+            version: 0,
+        }
     }
 
     /// A training episode of `actor` ended with this undiscounted return.
@@ -53,7 +59,9 @@ impl Ranking {
         self.evaluation
             .iter()
             .zip(&self.training)
-            .map(|(e, t)| e.or_else(|| (!t.is_empty()).then(|| t.iter().sum::<f64>() / t.len() as f64)))
+            .map(|(e, t)| {
+                e.or_else(|| (!t.is_empty()).then(|| t.iter().sum::<f64>() / t.len() as f64))
+            })
             .collect()
     }
 
@@ -88,9 +96,16 @@ mod tests {
         assert_eq!(r.best(), 2);
         assert!(r.evaluation(0, 1, 7.0));
         assert_eq!(r.best(), 0);
-        assert!(!r.evaluation(0, 1, -100.0), "an epoch already taken is ignored");
+        assert!(
+            !r.evaluation(0, 1, -100.0),
+            "an epoch already taken is ignored"
+        );
         r.training_episode(0, -1000.0);
-        assert_eq!(r.scores()[0], Some(7.0), "evaluation outranks training returns");
+        assert_eq!(
+            r.scores()[0],
+            Some(7.0),
+            "evaluation outranks training returns"
+        );
     }
 
     #[test]

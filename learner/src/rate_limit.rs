@@ -14,7 +14,12 @@ impl RateLimiter {
     /// `warmup_total`: transitions (all actors) before the first round; `tolerance`: in critic updates.
     pub fn new(actors: usize, utd: usize, warmup_total: u64, tolerance: f64) -> Self {
         let tolerance_rounds = ((tolerance / utd as f64).ceil() as u64).max(1);
-        Self { actors: actors as u64, utd: utd as u64, warmup_total, tolerance_rounds }
+        Self {
+            actors: actors as u64,
+            utd: utd as u64,
+            warmup_total,
+            tolerance_rounds,
+        }
     }
 
     /// Training rounds (G critic updates + one actor update each) that `inserted` transitions pay for:
@@ -37,7 +42,10 @@ impl RateLimiter {
     /// Critic updates per inserted transition after warm-up, and the target G/K.
     pub fn ratio(&self, critic_updates: u64, inserted: u64) -> (f64, f64) {
         let after = inserted.saturating_sub(self.warmup_total).max(1);
-        (critic_updates as f64 / after as f64, self.utd as f64 / self.actors as f64)
+        (
+            critic_updates as f64 / after as f64,
+            self.utd as f64 / self.actors as f64,
+        )
     }
 }
 

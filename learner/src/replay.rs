@@ -64,8 +64,18 @@ impl ReplayBuffer {
     }
 
     /// Stores one transition. The caller has checked sizes and finiteness.
-    pub fn push(&mut self, obs: &[f32], act: &[f32], reward: f32, next_obs: &[f32], terminated: bool) {
-        debug_assert_eq!((obs.len(), act.len(), next_obs.len()), (self.obs_dim, self.act_dim, self.obs_dim));
+    pub fn push(
+        &mut self,
+        obs: &[f32],
+        act: &[f32],
+        reward: f32,
+        next_obs: &[f32],
+        terminated: bool,
+    ) {
+        debug_assert_eq!(
+            (obs.len(), act.len(), next_obs.len()),
+            (self.obs_dim, self.act_dim, self.obs_dim)
+        );
         self.staged.extend_from_slice(obs);
         self.staged.extend_from_slice(act);
         self.staged.push(reward);
@@ -94,8 +104,11 @@ impl ReplayBuffer {
         let mut done = 0;
         while done < rows {
             let n = (rows - done).min(self.capacity - self.cursor);
-            let chunk = Tensor::from_slice(&src[done * width..(done + n) * width]).view([n as i64, width as i64]);
-            self.data.narrow(0, self.cursor as i64, n as i64).copy_(&chunk);
+            let chunk = Tensor::from_slice(&src[done * width..(done + n) * width])
+                .view([n as i64, width as i64]);
+            self.data
+                .narrow(0, self.cursor as i64, n as i64)
+                .copy_(&chunk);
             self.cursor = (self.cursor + n) % self.capacity;
             done += n;
         }
@@ -108,9 +121,14 @@ impl ReplayBuffer {
     pub fn sample(&mut self, groups: usize, batch: usize, rng: &mut impl Rng) -> Batch {
         self.flush();
         assert!(self.len > 0, "sample from an empty replay buffer");
-        let idx: Vec<i64> = (0..groups * batch).map(|_| rng.gen_range(0..self.len) as i64).collect();
+        let idx: Vec<i64> = (0..groups * batch)
+            .map(|_| rng.gen_range(0..self.len) as i64)
+            .collect();
         let idx = Tensor::from_slice(&idx).to_device(self.data.device());
-        let rows = self.data.index_select(0, &idx).view([groups as i64, batch as i64, -1]);
+        let rows = self
+            .data
+            .index_select(0, &idx)
+            .view([groups as i64, batch as i64, -1]);
         let (o, a) = (self.obs_dim as i64, self.act_dim as i64);
         Batch {
             obs: rows.narrow(2, 0, o),
@@ -127,7 +145,14 @@ impl ReplayBuffer {
         if self.len < self.capacity {
             self.data.narrow(0, 0, self.len as i64).copy()
         } else {
-            Tensor::cat(&[self.data.narrow(0, self.cursor as i64, (self.capacity - self.cursor) as i64), self.data.narrow(0, 0, self.cursor as i64)], 0)
+            Tensor::cat(
+                &[
+                    self.data
+                        .narrow(0, self.cursor as i64, (self.capacity - self.cursor) as i64),
+                    self.data.narrow(0, 0, self.cursor as i64),
+                ],
+                0,
+            )
         }
     }
 
@@ -135,7 +160,9 @@ impl ReplayBuffer {
     pub fn import(&mut self, rows: &Tensor) {
         let n = rows.size()[0].min(self.capacity as i64);
         let start = rows.size()[0] - n;
-        self.data.narrow(0, 0, n).copy_(&rows.narrow(0, start, n).to_device(self.data.device()));
+        self.data
+            .narrow(0, 0, n)
+            .copy_(&rows.narrow(0, start, n).to_device(self.data.device()));
         self.len = n as usize;
         self.cursor = (n as usize) % self.capacity;
     }
@@ -151,7 +178,13 @@ mod tests {
         let mut rb = ReplayBuffer::new(5, 2, 1, Device::Cpu);
         for i in 0..8 {
             let f = i as f32;
-            rb.push(&[f, f + 0.5], &[-f], 10.0 * f, &[f + 1.0, f + 1.5], i % 2 == 1);
+            rb.push(
+                &[f, f + 0.5],
+                &[-f],
+                10.0 * f,
+                &[f + 1.0, f + 1.5],
+                i % 2 == 1,
+            );
         }
         assert_eq!(rb.len(), 5);
         let rows = Vec::<f32>::try_from(rb.export().select(1, 0)).unwrap();
@@ -180,6 +213,9 @@ mod tests {
         let rows = rb.export();
         let mut other = ReplayBuffer::new(4, 1, 1, Device::Cpu);
         other.import(&rows);
-        assert_eq!(Vec::<f32>::try_from(other.export().select(1, 0)).unwrap(), vec![2.0, 3.0, 4.0, 5.0]);
+        assert_eq!(
+            Vec::<f32>::try_from(other.export().select(1, 0)).unwrap(),
+            vec![2.0, 3.0, 4.0, 5.0]
+        );
     }
 }

@@ -10,7 +10,10 @@ use crate::replay::ReplayBuffer;
 use crate::selkd::{RoundStats, Selkd};
 use anyhow::{anyhow, bail, Context, Result};
 use iceoryx2::port::update_connections::UpdateConnections;
-use selkd_protocol::{self as proto, services, Control, Name, ReportKind, Services, TransitionHeader, TransitionRow, MAX_ACTORS, MAX_HIDDEN_LAYERS, PROTOCOL_VERSION};
+use selkd_protocol::{
+    self as proto, services, Control, Name, ReportKind, Services, TransitionHeader, TransitionRow,
+    MAX_ACTORS, MAX_HIDDEN_LAYERS, PROTOCOL_VERSION,
+};
 use std::collections::VecDeque;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -32,7 +35,12 @@ pub fn parse_device(s: &str) -> Result<Device> {
     let device = match s {
         "cpu" => return Ok(Device::Cpu),
         "cuda" => Device::Cuda(0),
-        other => Device::Cuda(other.strip_prefix("cuda:").and_then(|n| n.parse().ok()).ok_or_else(|| anyhow!("device `{other}`: use cpu, cuda or cuda:N"))?),
+        other => Device::Cuda(
+            other
+                .strip_prefix("cuda:")
+                .and_then(|n| n.parse().ok())
+                .ok_or_else(|| anyhow!("device `{other}`: use cpu, cuda or cuda:N"))?,
+        ),
     };
     if !tch::Cuda::is_available() {
         bail!("run.device = {s}, but libtorch sees no CUDA device here; use --set run.device=cpu");
@@ -86,23 +94,40 @@ impl Learner {
             bail!("this build supports at most {MAX_ACTORS} actors and {MAX_HIDDEN_LAYERS} hidden layers");
         }
         let mut selkd = Selkd::new(&cfg.algo, spec.obs_dim, spec.act_dim, device, cfg.run.seed);
-        let mut replay = ReplayBuffer::new(cfg.algo.replay_capacity, spec.obs_dim, spec.act_dim, device);
+        let mut replay =
+            ReplayBuffer::new(cfg.algo.replay_capacity, spec.obs_dim, spec.act_dim, device);
         let warmup_total = cfg.warmup_per_actor() * k as u64;
-        std::fs::create_dir_all(run_dir.join("checkpoints")).with_context(|| format!("creating {}", run_dir.display()))?;
+        std::fs::create_dir_all(run_dir.join("checkpoints"))
+            .with_context(|| format!("creating {}", run_dir.display()))?;
         let metrics_path = run_dir.join("metrics.csv");
         let fresh_metrics = resume.is_none() || !metrics_path.exists();
-        let mut metrics = std::fs::OpenOptions::new().create(true).append(true).open(&metrics_path).with_context(|| format!("opening {}", metrics_path.display()))?;
+        let mut metrics = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&metrics_path)
+            .with_context(|| format!("opening {}", metrics_path.display()))?;
         if fresh_metrics {
-            let per = |p: &str| (0..k).map(|i| format!("{p}_{i}")).collect::<Vec<_>>().join(",");
+            let per = |p: &str| {
+                (0..k)
+                    .map(|i| format!("{p}_{i}"))
+                    .collect::<Vec<_>>()
+                    .join(",")
+            };
             writeln!(metrics, "epoch,env_steps,wall_s,critic_updates,updates_per_s,env_steps_per_s,critic_loss,q_mean,best,{},{},{},{},policy_lag_mean,dropped", per("eval_return"), per("score"), per("alpha"), per("kl_to_best"))?;
         }
         let resumed = match resume {
             Some(dir) => {
-                let state = checkpoint::load(dir, &mut selkd, &mut replay).with_context(|| format!("resuming from {}", dir.display()))?;
+                let state = checkpoint::load(dir, &mut selkd, &mut replay)
+                    .with_context(|| format!("resuming from {}", dir.display()))?;
                 if replay.is_empty() {
                     tracing::warn!("the checkpoint holds no replay buffer: training resumes on an empty one (set run.checkpoint_replay = true to keep it)");
                 }
-                tracing::info!(env_steps = state.inserted, version = state.weights_version, "resumed from {}", dir.display());
+                tracing::info!(
+                    env_steps = state.inserted,
+                    version = state.weights_version,
+                    "resumed from {}",
+                    dir.display()
+                );
                 Some(state)
             }
             None => None,
@@ -111,11 +136,24 @@ impl Learner {
         let inserted = resumed.as_ref().map_or(0, |s| s.inserted);
         let eval_epoch = resumed.as_ref().map_or(0, |s| s.eval_epoch);
         Ok(Self {
-            limiter: RateLimiter::new(k, cfg.algo.utd, warmup_total, cfg.asynchronous.ratio_tolerance),
-            ranking: resumed.as_ref().map_or_else(|| Ranking::new(k, cfg.eval.score_window), |s| s.ranking.clone()),
-            row: TransitionRow { obs_dim: spec.obs_dim, act_dim: spec.act_dim },
+            limiter: RateLimiter::new(
+                k,
+                cfg.algo.utd,
+                warmup_total,
+                cfg.asynchronous.ratio_tolerance,
+            ),
+            ranking: resumed.as_ref().map_or_else(
+                || Ranking::new(k, cfg.eval.score_window),
+                |s| s.ranking.clone(),
+            ),
+            row: TransitionRow {
+                obs_dim: spec.obs_dim,
+                act_dim: spec.act_dim,
+            },
             k,
-            received: resumed.as_ref().map_or_else(|| vec![0; k], |s| s.received.clone()),
+            received: resumed
+                .as_ref()
+                .map_or_else(|| vec![0; k], |s| s.received.clone()),
             inserted,
             lockstep_rounds: resumed.as_ref().map_or(0, |s| s.lockstep_rounds),
             weights_version: resumed.as_ref().map_or(1, |s| s.weights_version),
@@ -129,7 +167,11 @@ impl Learner {
             lag_max: 0,
             last_stats: RoundStats::default(),
             epochs_logged: eval_epoch,
-            next_checkpoint: if every == 0 { 0 } else { (inserted / every + 1) * every },
+            next_checkpoint: if every == 0 {
+                0
+            } else {
+                (inserted / every + 1) * every
+            },
             started: Instant::now(),
             wall_offset: resumed.as_ref().map_or(0.0, |s| s.wall_seconds),
             metrics,
@@ -151,24 +193,55 @@ impl Learner {
     /// Runs until the budget is reached or `stop` is raised.
     pub fn run(&mut self, run_id: &str, stop: Arc<AtomicBool>) -> Result<Outcome> {
         let svc = Services::new(run_id);
-        let node = services::node(&proto::learner_node_name(run_id)).map_err(|e| anyhow!("starting the iceoryx2 node: {e}"))?;
-        let io = |what: &'static str| move |e: services::Error| anyhow!("opening the {what} service: {e}");
+        let node = services::node(&proto::learner_node_name(run_id))
+            .map_err(|e| anyhow!("starting the iceoryx2 node: {e}"))?;
+        let io = |what: &'static str| {
+            move |e: services::Error| anyhow!("opening the {what} service: {e}")
+        };
         let k = self.k;
-        let transitions = services::transitions(&node, &svc, k).map_err(io("transitions"))?.subscriber_builder().buffer_size(proto::TRANSITION_BUFFER).create()?;
-        let reports = services::reports(&node, &svc, k).map_err(io("reports"))?.subscriber_builder().create()?;
-        let wake = services::to_learner(&node, &svc, k).map_err(io("to-learner"))?.listener_builder().create()?;
-        let notify_workers = services::to_workers(&node, &svc).map_err(io("to-workers"))?.notifier_builder().create()?;
-        let control_pub = services::control(&node, &svc).map_err(io("control"))?.publisher_builder().create()?;
-        let ranking_pub = services::ranking(&node, &svc).map_err(io("ranking"))?.publisher_builder().create()?;
+        let transitions = services::transitions(&node, &svc, k)
+            .map_err(io("transitions"))?
+            .subscriber_builder()
+            .buffer_size(proto::TRANSITION_BUFFER)
+            .create()?;
+        let reports = services::reports(&node, &svc, k)
+            .map_err(io("reports"))?
+            .subscriber_builder()
+            .create()?;
+        let wake = services::to_learner(&node, &svc, k)
+            .map_err(io("to-learner"))?
+            .listener_builder()
+            .create()?;
+        let notify_workers = services::to_workers(&node, &svc)
+            .map_err(io("to-workers"))?
+            .notifier_builder()
+            .create()?;
+        let control_pub = services::control(&node, &svc)
+            .map_err(io("control"))?
+            .publisher_builder()
+            .create()?;
+        let ranking_pub = services::ranking(&node, &svc)
+            .map_err(io("ranking"))?
+            .publisher_builder()
+            .create()?;
         let n_params = self.selkd.actor_weights(0).len();
         let weight_pubs = (0..k)
-            .map(|i| Ok(services::weights(&node, &svc, i).map_err(io("weights"))?.publisher_builder().initial_max_slice_len(n_params).create()?))
+            .map(|i| {
+                Ok(services::weights(&node, &svc, i)
+                    .map_err(io("weights"))?
+                    .publisher_builder()
+                    .initial_max_slice_len(n_params)
+                    .create()?)
+            })
             .collect::<Result<Vec<_>>>()?;
 
         let publish_weights = |s: &Selkd, version: u64| -> Result<()> {
             for (i, p) in weight_pubs.iter().enumerate() {
                 let mut sample = p.loan_slice_uninit(n_params)?;
-                *sample.user_header_mut() = proto::WeightsHeader { actor: i as u32, version };
+                *sample.user_header_mut() = proto::WeightsHeader {
+                    actor: i as u32,
+                    version,
+                };
                 sample.write_from_slice(&s.actor_weights(i)).send()?;
             }
             Ok(())
@@ -201,7 +274,10 @@ impl Learner {
                 publish_weights(&self.selkd, self.weights_version)?;
             }
             self.log_epochs()?;
-            if self.cfg.run.checkpoint_every > 0 && self.inserted >= self.next_checkpoint && self.inserted < self.cfg.run.total_env_steps {
+            if self.cfg.run.checkpoint_every > 0
+                && self.inserted >= self.next_checkpoint
+                && self.inserted < self.cfg.run.total_env_steps
+            {
                 self.checkpoint(&format!("step-{}", self.inserted))?;
                 self.next_checkpoint += self.cfg.run.checkpoint_every;
             }
@@ -212,9 +288,17 @@ impl Learner {
                 finishing_since = Some(Instant::now());
             }
             // At the end, wait (a bounded time) for the final evaluations so the last epoch is scored.
-            let done = interrupted || (budget_reached && (evals_in || finishing_since.is_some_and(|t| t.elapsed() > Duration::from_secs(120))));
+            let done = interrupted
+                || (budget_reached
+                    && (evals_in
+                        || finishing_since
+                            .is_some_and(|t| t.elapsed() > Duration::from_secs(120))));
             let control = self.control(done);
-            if last_control.as_ref().map(|c: &Control| !same_control(c, &control)).unwrap_or(true) {
+            if last_control
+                .as_ref()
+                .map(|c: &Control| !same_control(c, &control))
+                .unwrap_or(true)
+            {
                 control_pub.send_copy(control)?;
                 notify_workers.notify()?;
                 last_control = Some(control);
@@ -236,7 +320,10 @@ impl Learner {
             if last_progress.elapsed() >= Duration::from_secs(1) || done {
                 let dt = window.0.elapsed().as_secs_f64();
                 if dt >= 1.0 {
-                    rates = ((self.selkd.critic_updates - window.2) as f64 / dt, (self.inserted - window.1) as f64 / dt);
+                    rates = (
+                        (self.selkd.critic_updates - window.2) as f64 / dt,
+                        (self.inserted - window.1) as f64 / dt,
+                    );
                     window = (Instant::now(), self.inserted, self.selkd.critic_updates);
                 }
                 self.progress(rates);
@@ -253,20 +340,32 @@ impl Learner {
         self.checkpoint("final")?;
         // Give workers a moment to read the stop order before the node (and its history) goes away.
         std::thread::sleep(Duration::from_millis(200));
-        tracing::info!(env_steps = self.inserted, critic_updates = self.selkd.critic_updates, dropped_nonfinite = self.dropped_nonfinite, "learner done ({outcome:?})");
+        tracing::info!(
+            env_steps = self.inserted,
+            critic_updates = self.selkd.critic_updates,
+            dropped_nonfinite = self.dropped_nonfinite,
+            "learner done ({outcome:?})"
+        );
         Ok(outcome)
     }
 
     fn on_report(&mut self, r: &proto::Report) {
         let w = r.worker as usize;
         if w >= self.k {
-            tracing::warn!("report from worker {w}, but the run has {} actors; ignored", self.k);
+            tracing::warn!(
+                "report from worker {w}, but the run has {} actors; ignored",
+                self.k
+            );
             return;
         }
         match r.kind {
             ReportKind::Hello => {
                 let spec = selkd_envs::spec(&self.cfg.run.env).expect("validated");
-                if r.protocol_version != PROTOCOL_VERSION || r.env.as_str() != spec.id || r.obs_dim as usize != spec.obs_dim || r.act_dim as usize != spec.act_dim {
+                if r.protocol_version != PROTOCOL_VERSION
+                    || r.env.as_str() != spec.id
+                    || r.obs_dim as usize != spec.obs_dim
+                    || r.act_dim as usize != spec.act_dim
+                {
                     tracing::error!(
                         "worker {w} does not fit this run: it has protocol v{}, env `{}`, obs {}, act {}; the learner has protocol v{PROTOCOL_VERSION}, env `{}`, obs {}, act {}",
                         r.protocol_version, r.env.as_str(), r.obs_dim, r.act_dim, spec.id, spec.obs_dim, spec.act_dim
@@ -282,7 +381,12 @@ impl Learner {
                 if r.epoch > self.eval_reported[w] {
                     self.eval_reported[w] = r.epoch;
                     self.ranking.evaluation(w, r.epoch, r.mean_return);
-                    tracing::debug!(worker = w, epoch = r.epoch, mean_return = r.mean_return, "evaluation");
+                    tracing::debug!(
+                        worker = w,
+                        epoch = r.epoch,
+                        mean_return = r.mean_return,
+                        "evaluation"
+                    );
                 }
             }
         }
@@ -290,7 +394,11 @@ impl Learner {
 
     fn on_transition(&mut self, h: TransitionHeader, row: &[f32]) {
         let w = h.worker as usize;
-        if w >= self.k || h.obs_dim as usize != self.row.obs_dim || h.act_dim as usize != self.row.act_dim || row.len() != self.row.len() {
+        if w >= self.k
+            || h.obs_dim as usize != self.row.obs_dim
+            || h.act_dim as usize != self.row.act_dim
+            || row.len() != self.row.len()
+        {
             self.dropped_malformed += 1;
             if self.dropped_malformed == 1 {
                 tracing::error!("dropped a transition that does not fit the run (worker {w}, obs {}, act {}, {} values); counting further ones", h.obs_dim, h.act_dim, row.len());
@@ -301,7 +409,11 @@ impl Learner {
         if !row.iter().all(|v| v.is_finite()) {
             self.dropped_nonfinite += 1;
             if self.dropped_nonfinite == 1 || self.dropped_nonfinite.is_power_of_two() {
-                tracing::warn!(worker = w, total = self.dropped_nonfinite, "dropped a transition with a NaN or infinite value (never stored)");
+                tracing::warn!(
+                    worker = w,
+                    total = self.dropped_nonfinite,
+                    "dropped a transition with a NaN or infinite value (never stored)"
+                );
             }
             return;
         }
@@ -311,7 +423,10 @@ impl Learner {
             self.lag_count += 1;
             self.lag_max = self.lag_max.max(lag);
         }
-        let p = Pending { header: h, row: row.to_vec() };
+        let p = Pending {
+            header: h,
+            row: row.to_vec(),
+        };
         match self.cfg.run.mode {
             Mode::Sync => self.pending[w].push_back(p),
             Mode::Async => self.store(p),
@@ -323,7 +438,8 @@ impl Learner {
         self.replay.push(s, a, r, s2, terminated);
         self.inserted += 1;
         if p.header.episode_return.is_finite() {
-            self.ranking.training_episode(p.header.worker as usize, p.header.episode_return);
+            self.ranking
+                .training_episode(p.header.worker as usize, p.header.episode_return);
         }
         let epoch = self.inserted / self.cfg.eval.epoch_env_steps;
         if epoch > self.eval_epoch {
@@ -337,7 +453,10 @@ impl Learner {
         let mut trained = false;
         loop {
             let evals_in = self.eval_reported.iter().all(|&e| e >= self.eval_epoch);
-            if !evals_in || self.pending.iter().any(|q| q.is_empty()) || self.inserted >= self.cfg.run.total_env_steps {
+            if !evals_in
+                || self.pending.iter().any(|q| q.is_empty())
+                || self.inserted >= self.cfg.run.total_env_steps
+            {
                 return Ok(trained);
             }
             for w in 0..self.k {
@@ -379,11 +498,17 @@ impl Learner {
         match self.cfg.run.mode {
             Mode::Sync => {
                 // Warm-up steps need no weights: grant them at once; then one step per round.
-                let b = self.cfg.warmup_per_actor().max(self.lockstep_rounds + 1).min(per_actor_cap);
+                let b = self
+                    .cfg
+                    .warmup_per_actor()
+                    .max(self.lockstep_rounds + 1)
+                    .min(per_actor_cap);
                 budget[..self.k].iter_mut().for_each(|x| *x = b);
             }
             Mode::Async => {
-                let allowance = self.limiter.insert_allowance(self.inserted, self.selkd.actor_updates);
+                let allowance = self
+                    .limiter
+                    .insert_allowance(self.inserted, self.selkd.actor_updates);
                 let each = allowance.div_ceil(self.k as u64);
                 for (w, x) in budget[..self.k].iter_mut().enumerate() {
                     *x = (self.received[w] + each).min(per_actor_cap);
@@ -424,7 +549,12 @@ impl Learner {
         for (s, v) in scores.iter_mut().zip(self.ranking.scores()) {
             *s = v.unwrap_or(f64::NAN);
         }
-        proto::Ranking { version: self.ranking.version, actors: self.k as u32, best: self.ranking.best() as u32, scores }
+        proto::Ranking {
+            version: self.ranking.version,
+            actors: self.k as u32,
+            best: self.ranking.best() as u32,
+            scores,
+        }
     }
 
     /// One `PROGRESS {json}` line on stdout per second: the launcher draws its progress line from it.
@@ -459,10 +589,34 @@ impl Learner {
             self.epochs_logged += 1;
             let e = self.epochs_logged;
             let wall = self.wall();
-            let join = |v: &[f64]| v.iter().map(|x| format!("{x:.6}")).collect::<Vec<_>>().join(",");
-            let scores: Vec<f64> = self.ranking.scores().into_iter().map(|s| s.unwrap_or(f64::NAN)).collect();
-            let eval: Vec<f64> = (0..self.k).map(|i| if self.ranking.last_eval_epoch(i) >= e { scores[i] } else { f64::NAN }).collect();
-            let pad = |v: &[f64]| if v.len() == self.k { join(v) } else { join(&vec![f64::NAN; self.k]) };
+            let join = |v: &[f64]| {
+                v.iter()
+                    .map(|x| format!("{x:.6}"))
+                    .collect::<Vec<_>>()
+                    .join(",")
+            };
+            let scores: Vec<f64> = self
+                .ranking
+                .scores()
+                .into_iter()
+                .map(|s| s.unwrap_or(f64::NAN))
+                .collect();
+            let eval: Vec<f64> = (0..self.k)
+                .map(|i| {
+                    if self.ranking.last_eval_epoch(i) >= e {
+                        scores[i]
+                    } else {
+                        f64::NAN
+                    }
+                })
+                .collect();
+            let pad = |v: &[f64]| {
+                if v.len() == self.k {
+                    join(v)
+                } else {
+                    join(&vec![f64::NAN; self.k])
+                }
+            };
             writeln!(
                 self.metrics,
                 "{e},{},{wall:.3},{},{:.3},{:.3},{:.6},{:.6},{},{},{},{},{},{:.3},{}",
@@ -477,11 +631,21 @@ impl Learner {
                 join(&scores),
                 pad(&self.last_stats.alpha),
                 pad(&self.last_stats.kl_to_best),
-                if self.lag_count > 0 { self.lag_sum / self.lag_count as f64 } else { 0.0 },
+                if self.lag_count > 0 {
+                    self.lag_sum / self.lag_count as f64
+                } else {
+                    0.0
+                },
                 self.dropped_nonfinite + self.dropped_malformed,
             )?;
             self.metrics.flush()?;
-            tracing::info!(epoch = e, env_steps = e * self.cfg.eval.epoch_env_steps, best = self.ranking.best(), "evaluation returns {:?}", eval);
+            tracing::info!(
+                epoch = e,
+                env_steps = e * self.cfg.eval.epoch_env_steps,
+                best = self.ranking.best(),
+                "evaluation returns {:?}",
+                eval
+            );
         }
         Ok(())
     }
@@ -504,13 +668,23 @@ impl Learner {
         };
         let replay = self.cfg.run.checkpoint_replay.then_some(&mut self.replay);
         checkpoint::save(&dir, &self.selkd, replay, &state)?;
-        std::fs::write(self.run_dir.join("checkpoints").join("latest"), format!("{name}\n"))?;
-        tracing::info!(env_steps = self.inserted, "checkpoint written to {}", dir.display());
+        std::fs::write(
+            self.run_dir.join("checkpoints").join("latest"),
+            format!("{name}\n"),
+        )?;
+        tracing::info!(
+            env_steps = self.inserted,
+            "checkpoint written to {}",
+            dir.display()
+        );
         Ok(())
     }
 }
 
 fn same_control(a: &Control, b: &Control) -> bool {
     // `received` changes with every transition but only matters to a worker that is starting.
-    a.weights_version == b.weights_version && a.eval_epoch == b.eval_epoch && a.stop == b.stop && a.budget == b.budget
+    a.weights_version == b.weights_version
+        && a.eval_epoch == b.eval_epoch
+        && a.stop == b.stop
+        && a.budget == b.budget
 }

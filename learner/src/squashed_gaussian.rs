@@ -9,7 +9,10 @@ const HALF_LOG_2PI: f64 = 0.918_938_533_204_672_8;
 pub fn split_head(head: &Tensor) -> (Tensor, Tensor) {
     let a = head.size().last().copied().unwrap() / 2;
     let mu = head.narrow(-1, 0, a);
-    let log_std = head.narrow(-1, a, a).clamp(selkd_policy::LOG_STD_MIN as f64, selkd_policy::LOG_STD_MAX as f64);
+    let log_std = head.narrow(-1, a, a).clamp(
+        selkd_policy::LOG_STD_MIN as f64,
+        selkd_policy::LOG_STD_MAX as f64,
+    );
     (mu, log_std)
 }
 
@@ -19,10 +22,13 @@ pub fn split_head(head: &Tensor) -> (Tensor, Tensor) {
 /// `2(log 2 − u − softplus(−2u))`.
 pub fn sample(mu: &Tensor, log_std: &Tensor, eps: &Tensor) -> (Tensor, Tensor) {
     let u = mu + log_std.exp() * eps;
-    let log_normal = (eps.square() * -0.5 - log_std - HALF_LOG_2PI).sum_dim_intlist(-1, false, Kind::Float);
-    let correction = ((-&u * 2.0).softplus() + &u - std::f64::consts::LN_2)
-        .sum_dim_intlist(-1, false, Kind::Float)
-        * -2.0;
+    let log_normal =
+        (eps.square() * -0.5 - log_std - HALF_LOG_2PI).sum_dim_intlist(-1, false, Kind::Float);
+    let correction = ((-&u * 2.0).softplus() + &u - std::f64::consts::LN_2).sum_dim_intlist(
+        -1,
+        false,
+        Kind::Float,
+    ) * -2.0;
     (u.tanh(), log_normal - correction)
 }
 
@@ -42,11 +48,17 @@ mod tests {
         for d in 0..3 {
             let sigma = ls[d].exp();
             let u = mu[d] + sigma * eps[d];
-            let normal = -((u - mu[d]) / sigma).powi(2) / 2.0 - ls[d] - (2.0 * std::f64::consts::PI).sqrt().ln();
+            let normal = -((u - mu[d]) / sigma).powi(2) / 2.0
+                - ls[d]
+                - (2.0 * std::f64::consts::PI).sqrt().ln();
             want += normal - (1.0 - u.tanh().powi(2) + 1e-6).ln();
             assert!((a.double_value(&[0, d as i64]) - u.tanh()).abs() < 1e-6);
         }
-        assert!((logp.double_value(&[0]) - want).abs() < 1e-3, "{} vs {want}", logp.double_value(&[0]));
+        assert!(
+            (logp.double_value(&[0]) - want).abs() < 1e-3,
+            "{} vs {want}",
+            logp.double_value(&[0])
+        );
     }
 
     #[test]

@@ -41,9 +41,17 @@ pub fn critic_target(
     gamma: f64,
     formation: Formation,
 ) -> Tensor {
-    let inner = if formation.inner_is_min() { q_next.amin(1, false) } else { q_next.amax(1, false) };
+    let inner = if formation.inner_is_min() {
+        q_next.amin(1, false)
+    } else {
+        q_next.amax(1, false)
+    };
     let soft_value = inner - alpha.view([1, -1, 1]) * logp_next;
-    let outer = if formation.outer_is_max() { soft_value.amax(1, false) } else { soft_value.amin(1, false) };
+    let outer = if formation.outer_is_max() {
+        soft_value.amax(1, false)
+    } else {
+        soft_value.amin(1, false)
+    };
     reward + (1.0 - terminated) * gamma * outer
 }
 
@@ -57,7 +65,15 @@ mod tests {
     }
 
     /// A plain loop over the definition for one (G=1) group.
-    fn reference(r: &[f64], d: &[f64], q: &[Vec<Vec<f64>>], lp: &[Vec<f64>], alpha: &[f64], gamma: f64, f: Formation) -> Vec<f64> {
+    fn reference(
+        r: &[f64],
+        d: &[f64],
+        q: &[Vec<Vec<f64>>],
+        lp: &[Vec<f64>],
+        alpha: &[f64],
+        gamma: f64,
+        f: Formation,
+    ) -> Vec<f64> {
         let (m, k, b) = (q.len(), q[0].len(), q[0][0].len());
         (0..b)
             .map(|row| {
@@ -68,13 +84,25 @@ mod tests {
                         let v = q[j][i][row];
                         inner = Some(match inner {
                             None => v,
-                            Some(x) => if f.inner_is_min() { x.min(v) } else { x.max(v) },
+                            Some(x) => {
+                                if f.inner_is_min() {
+                                    x.min(v)
+                                } else {
+                                    x.max(v)
+                                }
+                            }
                         });
                     }
                     let v = inner.unwrap() - alpha[i] * lp[i][row];
                     best = Some(match best {
                         None => v,
-                        Some(x) => if f.outer_is_max() { x.max(v) } else { x.min(v) },
+                        Some(x) => {
+                            if f.outer_is_max() {
+                                x.max(v)
+                            } else {
+                                x.min(v)
+                            }
+                        }
                     });
                 }
                 r[row] + gamma * (1.0 - d[row]) * best.unwrap()
@@ -94,11 +122,27 @@ mod tests {
         let (r, d, alpha) = ([1.0, -0.5, 0.0, 2.0], [0.0, 1.0, 0.0, 0.0], [0.2, 0.7]);
         let qf: Vec<f64> = q.iter().flatten().flatten().copied().collect();
         let lpf: Vec<f64> = lp.iter().flatten().copied().collect();
-        for f in [Formation::MaxMin, Formation::MinMin, Formation::MinMax, Formation::MaxMax] {
-            let y = critic_target(&t(&r, &[1, 4]), &t(&d, &[1, 4]), &t(&qf, &[1, 3, 2, 4]), &t(&lpf, &[1, 2, 4]), &t(&alpha, &[2]), 0.99, f);
+        for f in [
+            Formation::MaxMin,
+            Formation::MinMin,
+            Formation::MinMax,
+            Formation::MaxMax,
+        ] {
+            let y = critic_target(
+                &t(&r, &[1, 4]),
+                &t(&d, &[1, 4]),
+                &t(&qf, &[1, 3, 2, 4]),
+                &t(&lpf, &[1, 2, 4]),
+                &t(&alpha, &[2]),
+                0.99,
+                f,
+            );
             let want = reference(&r, &d, &q, &lp, &alpha, 0.99, f);
             for row in 0..4 {
-                assert!((y.double_value(&[0, row]) - want[row as usize]).abs() < 1e-12, "{f:?} row {row}");
+                assert!(
+                    (y.double_value(&[0, row]) - want[row as usize]).abs() < 1e-12,
+                    "{f:?} row {row}"
+                );
             }
         }
     }
@@ -112,7 +156,15 @@ mod tests {
         let (r, d, alpha) = ([0.1, 0.2, 0.3], [0.0, 0.0, 1.0], 0.3);
         let qf: Vec<f64> = q.iter().flatten().copied().collect();
         for f in [Formation::MaxMin, Formation::MinMin] {
-            let y = critic_target(&t(&r, &[1, 3]), &t(&d, &[1, 3]), &t(&qf, &[1, 2, 1, 3]), &t(&lp, &[1, 1, 3]), &t(&[alpha], &[1]), 0.99, f);
+            let y = critic_target(
+                &t(&r, &[1, 3]),
+                &t(&d, &[1, 3]),
+                &t(&qf, &[1, 2, 1, 3]),
+                &t(&lp, &[1, 1, 3]),
+                &t(&[alpha], &[1]),
+                0.99,
+                f,
+            );
             for b in 0..3 {
                 // With M = N = 2 this is SAC's clipped double-Q target.
                 let want = r[b] + 0.99 * (1.0 - d[b]) * (q[0][b].min(q[1][b]) - alpha * lp[b]);

@@ -23,7 +23,11 @@ pub struct ActorLayout {
 
 impl ActorLayout {
     pub fn new(obs_dim: usize, act_dim: usize, hidden: &[usize]) -> Self {
-        Self { obs_dim, act_dim, hidden: hidden.to_vec() }
+        Self {
+            obs_dim,
+            act_dim,
+            hidden: hidden.to_vec(),
+        }
     }
 
     /// `(in, out)` of every linear layer, the output head last.
@@ -113,14 +117,21 @@ impl Actor {
             x = y;
         }
         let a = self.layout.act_dim;
-        let log_std = x[a..].iter().map(|v| v.clamp(LOG_STD_MIN, LOG_STD_MAX)).collect();
+        let log_std = x[a..]
+            .iter()
+            .map(|v| v.clamp(LOG_STD_MIN, LOG_STD_MAX))
+            .collect();
         x.truncate(a);
         (x, log_std)
     }
 
     /// The deterministic (evaluation) action `tanh(μ)`.
     pub fn mean_action(&self, obs: &[f32]) -> Vec<f32> {
-        self.mean_log_std(obs).0.into_iter().map(f32::tanh).collect()
+        self.mean_log_std(obs)
+            .0
+            .into_iter()
+            .map(f32::tanh)
+            .collect()
     }
 
     /// A sampled (behaviour) action `tanh(μ + σ·ε)`, `ε ~ N(0, I)`.

@@ -84,7 +84,16 @@ impl TransitionRow {
     pub fn is_empty(&self) -> bool {
         false
     }
-    pub fn write(&self, out: &mut Vec<f32>, s: &[f32], a: &[f32], r: f32, s2: &[f32], terminated: bool, truncated: bool) {
+    pub fn write(
+        &self,
+        out: &mut Vec<f32>,
+        s: &[f32],
+        a: &[f32],
+        r: f32,
+        s2: &[f32],
+        terminated: bool,
+        truncated: bool,
+    ) {
         out.clear();
         out.extend_from_slice(s);
         out.extend_from_slice(a);
@@ -96,7 +105,14 @@ impl TransitionRow {
     /// `(s, a, r, s', terminated, truncated)` views into a row of the right length.
     pub fn split<'a>(&self, row: &'a [f32]) -> (&'a [f32], &'a [f32], f32, &'a [f32], bool, bool) {
         let (o, a) = (self.obs_dim, self.act_dim);
-        (&row[..o], &row[o..o + a], row[o + a], &row[o + a + 1..2 * o + a + 1], row[2 * o + a + 1] != 0.0, row[2 * o + a + 2] != 0.0)
+        (
+            &row[..o],
+            &row[o..o + a],
+            row[o + a],
+            &row[o + a + 1..2 * o + a + 1],
+            row[2 * o + a + 1] != 0.0,
+            row[2 * o + a + 2] != 0.0,
+        )
     }
 }
 
@@ -192,7 +208,9 @@ pub struct Services {
 
 impl Services {
     pub fn new(run_id: &str) -> Self {
-        Self { run_id: run_id.to_string() }
+        Self {
+            run_id: run_id.to_string(),
+        }
     }
     fn name(&self, what: &str) -> Result<ServiceName, ProtocolError> {
         let s = format!("selkd/{}/{}", self.run_id, what);
@@ -234,12 +252,30 @@ pub enum ProtocolError {
         "this worker does not fit the run: learner has protocol v{lp}, env `{le}`, obs {lo}, act {la}; \
          worker has protocol v{wp}, env `{we}`, obs {wo}, act {wa}. Start the worker with the run's env and the same selkd build"
     )]
-    Mismatch { lp: u32, le: String, lo: u32, la: u32, wp: u32, we: String, wo: u32, wa: u32 },
+    Mismatch {
+        lp: u32,
+        le: String,
+        lo: u32,
+        la: u32,
+        wp: u32,
+        we: String,
+        wo: u32,
+        wa: u32,
+    },
 }
 
 /// The worker side of the handshake: does this worker fit the run the learner announced?
-pub fn check_peer(control: &Control, env: &str, obs_dim: usize, act_dim: usize) -> Result<(), ProtocolError> {
-    if control.protocol_version == PROTOCOL_VERSION && control.env.as_str() == env && control.obs_dim as usize == obs_dim && control.act_dim as usize == act_dim {
+pub fn check_peer(
+    control: &Control,
+    env: &str,
+    obs_dim: usize,
+    act_dim: usize,
+) -> Result<(), ProtocolError> {
+    if control.protocol_version == PROTOCOL_VERSION
+        && control.env.as_str() == env
+        && control.obs_dim as usize == obs_dim
+        && control.act_dim as usize == act_dim
+    {
         return Ok(());
     }
     Err(ProtocolError::Mismatch {
@@ -282,17 +318,35 @@ mod tests {
     #[test]
     fn handshake_accepts_a_match_and_names_both_sides_of_a_mismatch() {
         assert!(check_peer(&control(), "pendulum", 3, 1).is_ok());
-        let e = check_peer(&control(), "hopper", 11, 3).unwrap_err().to_string();
-        assert!(e.contains("`pendulum`, obs 3, act 1") && e.contains("`hopper`, obs 11, act 3"), "{e}");
+        let e = check_peer(&control(), "hopper", 11, 3)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("`pendulum`, obs 3, act 1") && e.contains("`hopper`, obs 11, act 3"),
+            "{e}"
+        );
     }
 
     #[test]
     fn rows_round_trip() {
-        let row = TransitionRow { obs_dim: 2, act_dim: 1 };
+        let row = TransitionRow {
+            obs_dim: 2,
+            act_dim: 1,
+        };
         let mut v = Vec::new();
         row.write(&mut v, &[1.0, 2.0], &[0.5], -3.0, &[4.0, 5.0], true, false);
         assert_eq!(v.len(), row.len());
-        assert_eq!(row.split(&v), (&[1.0, 2.0][..], &[0.5][..], -3.0, &[4.0, 5.0][..], true, false));
+        assert_eq!(
+            row.split(&v),
+            (
+                &[1.0, 2.0][..],
+                &[0.5][..],
+                -3.0,
+                &[4.0, 5.0][..],
+                true,
+                false
+            )
+        );
         assert_eq!(Name::new("pendulum").as_str(), "pendulum");
     }
 }
@@ -317,7 +371,11 @@ pub mod services {
             .create::<ipc::Service>()?)
     }
 
-    pub fn transitions(node: &Node, s: &Services, actors: usize) -> Result<PubSub<[f32], TransitionHeader>, Error> {
+    pub fn transitions(
+        node: &Node,
+        s: &Services,
+        actors: usize,
+    ) -> Result<PubSub<[f32], TransitionHeader>, Error> {
         Ok(node
             .service_builder(&s.transitions()?)
             .publish_subscribe::<[f32]>()
@@ -356,8 +414,14 @@ pub mod services {
         };
     }
 
-    pub fn weights(node: &Node, s: &Services, actor: usize) -> Result<PubSub<[f32], WeightsHeader>, Error> {
-        Ok(latest!(node, s.weights(actor)?, [f32]).user_header::<WeightsHeader>().open_or_create()?)
+    pub fn weights(
+        node: &Node,
+        s: &Services,
+        actor: usize,
+    ) -> Result<PubSub<[f32], WeightsHeader>, Error> {
+        Ok(latest!(node, s.weights(actor)?, [f32])
+            .user_header::<WeightsHeader>()
+            .open_or_create()?)
     }
 
     pub fn control(node: &Node, s: &Services) -> Result<PubSub<Control>, Error> {
@@ -369,11 +433,21 @@ pub mod services {
     }
 
     pub fn to_learner(node: &Node, s: &Services, actors: usize) -> Result<Event, Error> {
-        Ok(node.service_builder(&s.to_learner()?).event().max_notifiers(max_ports(actors) + 2).max_listeners(2).open_or_create()?)
+        Ok(node
+            .service_builder(&s.to_learner()?)
+            .event()
+            .max_notifiers(max_ports(actors) + 2)
+            .max_listeners(2)
+            .open_or_create()?)
     }
 
     pub fn to_workers(node: &Node, s: &Services) -> Result<Event, Error> {
-        Ok(node.service_builder(&s.to_workers()?).event().max_notifiers(2).max_listeners(MAX_ACTORS * 2 + 4).open_or_create()?)
+        Ok(node
+            .service_builder(&s.to_workers()?)
+            .event()
+            .max_notifiers(2)
+            .max_listeners(MAX_ACTORS * 2 + 4)
+            .open_or_create()?)
     }
 }
 

@@ -12,27 +12,47 @@ fn worker_pids(run_id: &str, worker: usize) -> Vec<i32> {
     std::fs::read_dir("/proc")
         .unwrap()
         .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<i32>().ok())
-        .filter(|pid| std::fs::read(format!("/proc/{pid}/cmdline")).map(|c| String::from_utf8_lossy(&c).contains(&want)).unwrap_or(false))
+        .filter(|pid| {
+            std::fs::read(format!("/proc/{pid}/cmdline"))
+                .map(|c| String::from_utf8_lossy(&c).contains(&want))
+                .unwrap_or(false)
+        })
         .collect()
 }
 
 fn env_steps_so_far(dir: &std::path::Path) -> u64 {
     let text = log(dir, "progress.jsonl");
-    text.lines().last().and_then(|l| serde_json::from_str::<serde_json::Value>(l).ok()).and_then(|v| v["env_steps"].as_u64()).unwrap_or(0)
+    text.lines()
+        .last()
+        .and_then(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .and_then(|v| v["env_steps"].as_u64())
+        .unwrap_or(0)
 }
 
 #[test]
 fn a_killed_worker_is_restarted_and_rejoins_with_the_current_weights() {
     let dir = temp_dir("kill");
-    let mut child = spawn(train(&dir, &small_run(&["algo.actors=2", "run.total_env_steps=6000"])));
+    let mut child = spawn(train(
+        &dir,
+        &small_run(&["algo.actors=2", "run.total_env_steps=6000"]),
+    ));
     // The launcher's first line names the run id.
     let mut stderr = BufReader::new(child.stderr.take().unwrap());
     let mut first = String::new();
     stderr.read_line(&mut first).unwrap();
-    let run_id = first.split_whitespace().nth(2).unwrap().trim_end_matches(':').to_string();
+    let run_id = first
+        .split_whitespace()
+        .nth(2)
+        .unwrap()
+        .trim_end_matches(':')
+        .to_string();
     let t0 = Instant::now();
     while env_steps_so_far(&dir) < 2000 {
-        assert!(t0.elapsed() < Duration::from_secs(120), "run made no progress: {}", log(&dir, "learner.log"));
+        assert!(
+            t0.elapsed() < Duration::from_secs(120),
+            "run made no progress: {}",
+            log(&dir, "learner.log")
+        );
         std::thread::sleep(Duration::from_millis(100));
     }
     let pids = worker_pids(&run_id, 1);
@@ -42,16 +62,38 @@ fn a_killed_worker_is_restarted_and_rejoins_with_the_current_weights() {
     std::io::Read::read_to_string(&mut stderr, &mut rest).unwrap();
     let status = child.wait().unwrap();
     let learner = log(&dir, "learner.log");
-    assert!(status.success(), "run did not finish after the kill ({status}):\n{first}{rest}\n{learner}");
-    assert!(rest.contains("worker 1 died (signal 9); restarting it (generation 1)"), "{rest}");
+    assert!(
+        status.success(),
+        "run did not finish after the kill ({status}):\n{first}{rest}\n{learner}"
+    );
+    assert!(
+        rest.contains("worker 1 died (signal 9); restarting it (generation 1)"),
+        "{rest}"
+    );
     // The restarted worker's hello: the weights it holds must be the learner's current version.
-    let line = learner.lines().find(|l| l.contains("worker 1 joined (generation 1)")).unwrap_or_else(|| panic!("no rejoin in learner log:\n{learner}"));
-    let nums: Vec<u64> = line.split(|c: char| !c.is_ascii_digit()).filter_map(|t| t.parse().ok()).collect();
+    let line = learner
+        .lines()
+        .find(|l| l.contains("worker 1 joined (generation 1)"))
+        .unwrap_or_else(|| panic!("no rejoin in learner log:\n{learner}"));
+    let nums: Vec<u64> = line
+        .split(|c: char| !c.is_ascii_digit())
+        .filter_map(|t| t.parse().ok())
+        .collect();
     let (held, current) = (nums[nums.len() - 2], nums[nums.len() - 1]);
-    assert!(held > 1, "the restarted worker should hold trained weights, not the initial ones: {line}");
-    assert_eq!(held, current, "restarted worker holds version {held}, learner is at {current}: {line}");
+    assert!(
+        held > 1,
+        "the restarted worker should hold trained weights, not the initial ones: {line}"
+    );
+    assert_eq!(
+        held, current,
+        "restarted worker holds version {held}, learner is at {current}: {line}"
+    );
     let (h, rows) = metrics(&dir);
-    assert_eq!(*column(&h, &rows, "env_steps").last().unwrap(), 6000.0, "the run reached its budget");
+    assert_eq!(
+        *column(&h, &rows, "env_steps").last().unwrap(),
+        6000.0,
+        "the run reached its budget"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -60,25 +102,53 @@ fn two_runs_at_once_do_not_cross_and_sync_runs_reproduce_bit_for_bit() {
     let (a, b, c) = (temp_dir("twin-a"), temp_dir("twin-b"), temp_dir("other-c"));
     let twin = small_run(&["algo.actors=2", "run.total_env_steps=3000", "run.seed=7"]);
     // A third run at the same time with another shape: crossing would mix sizes and fail loudly.
-    let other = small_run(&["algo.actors=3", "eval.epoch_env_steps=999", "algo.hidden=[16]", "run.total_env_steps=3000", "run.seed=8"]);
-    let children = [spawn(train(&a, &twin)), spawn(train(&b, &twin)), spawn(train(&c, &other))];
+    let other = small_run(&[
+        "algo.actors=3",
+        "eval.epoch_env_steps=999",
+        "algo.hidden=[16]",
+        "run.total_env_steps=3000",
+        "run.seed=8",
+    ]);
+    let children = [
+        spawn(train(&a, &twin)),
+        spawn(train(&b, &twin)),
+        spawn(train(&c, &other)),
+    ];
     for (child, dir) in children.into_iter().zip([&a, &b, &c]) {
         let out = child.wait_with_output().unwrap();
         assert_success(&out, dir);
         let learner = log(dir, "learner.log");
-        assert!(!learner.contains("does not fit") && !learner.contains("dropped a transition"), "{learner}");
+        assert!(
+            !learner.contains("does not fit") && !learner.contains("dropped a transition"),
+            "{learner}"
+        );
     }
     let (ha, ra) = metrics(&a);
     let (hb, rb) = metrics(&b);
     assert_eq!(ha, hb);
-    for col in ["critic_updates", "critic_loss", "q_mean", "eval_return_0", "eval_return_1", "alpha_0", "kl_to_best_1"] {
-        assert_eq!(column(&ha, &ra, col), column(&hb, &rb, col), "sync runs with one seed differ in {col}");
+    for col in [
+        "critic_updates",
+        "critic_loss",
+        "q_mean",
+        "eval_return_0",
+        "eval_return_1",
+        "alpha_0",
+        "kl_to_best_1",
+    ] {
+        assert_eq!(
+            column(&ha, &ra, col),
+            column(&hb, &rb, col),
+            "sync runs with one seed differ in {col}"
+        );
     }
     let (hc, rc) = metrics(&c);
     assert!(hc.contains(&"eval_return_2".to_string()) && !rc.is_empty());
     let weights_a = std::fs::read(a.join("checkpoints/final/model.safetensors")).unwrap();
     let weights_b = std::fs::read(b.join("checkpoints/final/model.safetensors")).unwrap();
-    assert!(weights_a == weights_b, "final checkpoints of the two sync runs differ");
+    assert!(
+        weights_a == weights_b,
+        "final checkpoints of the two sync runs differ"
+    );
     for d in [a, b, c] {
         let _ = std::fs::remove_dir_all(d);
     }

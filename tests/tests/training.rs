@@ -33,13 +33,31 @@ fn selkd_learns_pendulum_well_beyond_a_random_policy() {
     let (h, rows) = metrics(&dir);
     let k = 3;
     let last = rows.last().unwrap();
-    let best_final = (0..k).map(|i| column(&h, &rows, &format!("eval_return_{i}")).last().copied().unwrap()).fold(f64::MIN, f64::max);
+    let best_final = (0..k)
+        .map(|i| {
+            column(&h, &rows, &format!("eval_return_{i}"))
+                .last()
+                .copied()
+                .unwrap()
+        })
+        .fold(f64::MIN, f64::max);
     let random = random_policy_return(20);
-    let first_best = (0..k).map(|i| column(&h, &rows, &format!("eval_return_{i}"))[0]).fold(f64::MIN, f64::max);
+    let first_best = (0..k)
+        .map(|i| column(&h, &rows, &format!("eval_return_{i}"))[0])
+        .fold(f64::MIN, f64::max);
     eprintln!("random policy {random:.0}; first evaluation (best actor) {first_best:.0}; final evaluation (best actor) {best_final:.0}");
-    assert!(random < -900.0, "sanity: a random policy scores about -1200 on Pendulum, got {random}");
-    assert!(best_final > random + 600.0, "final best evaluation {best_final:.0} is not well beyond random {random:.0}");
-    assert_eq!(last[h.iter().position(|c| c == "env_steps").unwrap()], 12000.0);
+    assert!(
+        random < -900.0,
+        "sanity: a random policy scores about -1200 on Pendulum, got {random}"
+    );
+    assert!(
+        best_final > random + 600.0,
+        "final best evaluation {best_final:.0} is not well beyond random {random:.0}"
+    );
+    assert_eq!(
+        last[h.iter().position(|c| c == "env_steps").unwrap()],
+        12000.0
+    );
     assert!(dir.join("checkpoints/final/model.safetensors").exists());
     assert!(dir.join("config.toml").exists());
     let _ = std::fs::remove_dir_all(&dir);
@@ -48,13 +66,24 @@ fn selkd_learns_pendulum_well_beyond_a_random_policy() {
 #[test]
 fn bad_config_gets_a_one_line_error_and_no_run() {
     let dir = temp_dir("badcfg");
-    for (set, key) in [("algo.subset=20", "algo.subset"), ("algo.actors=0", "algo.actors"), ("run.env=humanoidd", "pendulum"), ("algo.batch_size=-5", "batch_size")] {
+    for (set, key) in [
+        ("algo.subset=20", "algo.subset"),
+        ("algo.actors=0", "algo.actors"),
+        ("run.env=humanoidd", "pendulum"),
+        ("algo.batch_size=-5", "batch_size"),
+    ] {
         let out = run(train(&dir.join("x"), &["--set".into(), set.into()]));
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{set}: {err}");
         assert_eq!(err.trim().lines().count(), 1, "{set}: one line, got {err}");
-        assert!(err.contains(key) && !err.contains("panicked"), "{set}: {err}");
+        assert!(
+            err.contains(key) && !err.contains("panicked"),
+            "{set}: {err}"
+        );
     }
-    assert!(!dir.join("x").exists(), "no run directory for a rejected config");
+    assert!(
+        !dir.join("x").exists(),
+        "no run directory for a rejected config"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

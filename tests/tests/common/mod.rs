@@ -6,9 +6,19 @@ use std::process::{Child, Command, Output, Stdio};
 
 /// A binary of this workspace, built in the same profile as the tests (`cargo build --release`).
 pub fn bin(name: &str) -> PathBuf {
-    let dir = std::env::current_exe().unwrap().parent().unwrap().parent().unwrap().to_path_buf();
+    let dir = std::env::current_exe()
+        .unwrap()
+        .parent()
+        .unwrap()
+        .parent()
+        .unwrap()
+        .to_path_buf();
     let p = dir.join(name);
-    assert!(p.exists(), "{} is missing: run `cargo build --release --workspace` before the tests", p.display());
+    assert!(
+        p.exists(),
+        "{} is missing: run `cargo build --release --workspace` before the tests",
+        p.display()
+    );
     p
 }
 
@@ -35,7 +45,9 @@ pub fn small_run(extra: &[&str]) -> Vec<String> {
     .map(|s| s.to_string())
     .collect();
     sets.extend(extra.iter().map(|s| s.to_string()));
-    sets.iter().flat_map(|s| ["--set".to_string(), s.clone()]).collect()
+    sets.iter()
+        .flat_map(|s| ["--set".to_string(), s.clone()])
+        .collect()
 }
 
 pub fn train(run_dir: &Path, sets: &[String]) -> Command {
@@ -45,7 +57,11 @@ pub fn train(run_dir: &Path, sets: &[String]) -> Command {
 }
 
 pub fn spawn(mut c: Command) -> Child {
-    c.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap()
+    c.stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
 }
 
 pub fn run(mut c: Command) -> Output {
@@ -56,13 +72,27 @@ pub fn run(mut c: Command) -> Output {
 pub fn metrics(run_dir: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
     let text = std::fs::read_to_string(run_dir.join("metrics.csv")).unwrap();
     let mut lines = text.lines();
-    let header = lines.next().unwrap().split(',').map(str::to_string).collect();
-    let rows = lines.map(|l| l.split(',').map(|v| v.parse::<f64>().unwrap_or(f64::NAN)).collect()).collect();
+    let header = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    let rows = lines
+        .map(|l| {
+            l.split(',')
+                .map(|v| v.parse::<f64>().unwrap_or(f64::NAN))
+                .collect()
+        })
+        .collect();
     (header, rows)
 }
 
 pub fn column(header: &[String], rows: &[Vec<f64>], name: &str) -> Vec<f64> {
-    let i = header.iter().position(|h| h == name).unwrap_or_else(|| panic!("no column {name}"));
+    let i = header
+        .iter()
+        .position(|h| h == name)
+        .unwrap_or_else(|| panic!("no column {name}"));
     rows.iter().map(|r| r[i]).collect()
 }
 
