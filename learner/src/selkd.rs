@@ -20,7 +20,7 @@ use crate::config::{AlgoConfig, Sharing};
 use crate::distillation::gaussian_kl;
 use crate::ensemble::Ensemble;
 use crate::optim::Adam;
-use crate::replay::ReplayBuffer;
+use crate::replay::{Batch, ReplayBuffer};
 use crate::squashed_gaussian::{sample, split_head};
 use crate::targets::critic_target;
 use rand::SeedableRng;
@@ -126,6 +126,13 @@ impl Selkd {
                     .collect::<Vec<_>>()
             })
             .collect();
+        self.update_critics_on(&batch, &subsets)
+    }
+
+    /// Lines 11–13 on a drawn mini-batch (`groups` × B rows) and its subsets (`groups` × M indices).
+    pub fn update_critics_on(&mut self, batch: &Batch, subsets: &[i64]) -> (f64, f64) {
+        let (n, b) = (self.cfg.critics, self.cfg.batch_size);
+        let groups = batch.obs.size()[0] as usize;
         // Line 11: the in-target max-min value, without gradient.
         let y = tch::no_grad(|| {
             self.target(
@@ -280,5 +287,272 @@ impl Selkd {
     /// Actor `i`'s weights in the flat layout workers use.
     pub fn actor_weights(&self, i: usize) -> Vec<f32> {
         self.actors.member_flat(i as i64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::Sharing;
+    use crate::targets::Formation;
+    use rand::Rng;
+
+    fn small(k: usize, n: usize, m: usize) -> AlgoConfig {
+        AlgoConfig {
+            actors: k,
+            critics: n,
+            subset: m,
+            utd: 2,
+            batch_size: 8,
+            hidden: vec![16, 16],
+            ..AlgoConfig::default()
+        }
+    }
+
+    fn filled_replay(obs: usize, act: usize, rows: usize) -> ReplayBuffer {
+        let mut rng = Pcg64::seed_from_u64(5);
+        let mut rb = ReplayBuffer::new(1000, obs, act, Device::Cpu);
+        for i in 0..rows {
+            let mut v =
+                |n: usize| -> Vec<f32> { (0..n).map(|_| rng.gen_range(-1.0..1.0)).collect() };
+            let (s, a, s2) = (v(obs), v(act), v(obs));
+            rb.push(&s, &a, rng.gen_range(-2.0..2.0), &s2, i % 7 == 0);
+        }
+        rb
+    }
+
+    /// A plain one-network MLP forward on a single row, from member `i`'s stacked weights.
+    fn mlp(ens: &Ensemble, i: i64, x: &[f32]) -> Vec<f64> {
+        let mut h: Vec<f64> = x.iter().map(|&v| v as f64).collect();
+        let last = ens.layers.len() - 1;
+        for (l, layer) in ens.layers.iter().enumerate() {
+            let w = layer.weight.get(i);
+            let bias = layer.bias.get(i);
+            let (n_in, n_out) = (w.size()[0], w.size()[1]);
+            let mut out = vec![0.0; n_out as usize];
+            for o in 0..n_out {
+                let mut acc = bias.double_value(&[0, o]);
+                for k in 0..n_in {
+                    acc += h[k as usize] * w.double_value(&[k, o]);
+                }
+                out[o as usize] = if l < last { acc.max(0.0) } else { acc };
+            }
+            h = out;
+        }
+        h
+    }
+
+    fn row(t: &Tensor, g: i64, b: i64) -> Vec<f32> {
+        Vec::<f32>::try_from(t.get(g).get(b).contiguous()).unwrap()
+    }
+
+    /// K = 1: the critic target is REDQ's, `r + γ(1−d)(min_{j∈𝓜} Q̄_j(s', ã') − α log π(ã'|s'))`,
+    /// recomputed here row by row with plain loops over separate networks; and one update moves
+    /// each critic by Adam's first step on its own loss (`−lr·sign(g)`).
+    #[test]
+    fn one_actor_update_is_redq_computed_by_hand() {
+        let (obs, act) = (3, 2);
+        let cfg = small(1, 5, 2);
+        let mut s = Selkd::new(&cfg, obs, act, Device::Cpu, 3);
+        let mut rb = filled_replay(obs, act, 200);
+        let mut draw_rng = Pcg64::seed_from_u64(9);
+        let batch = rb.sample(1, cfg.batch_size, &mut draw_rng);
+        let subsets = vec![4i64, 1];
+        // The noise update_critics_on will draw: the learner's next K·B·A normals.
+        let mut peek = s.rng.clone();
+        let eps: Vec<f32> = (0..cfg.batch_size * act)
+            .map(|_| StandardNormal.sample(&mut peek))
+            .collect();
+        let before: Vec<Vec<f32>> = (0..5).map(|j| s.critics.member_flat(j)).collect();
+        let target_before = s.target_critics.copy();
+        let alpha = 1.0; // log α starts at 0
+        let mut ys = Vec::new();
+        for b in 0..cfg.batch_size as i64 {
+            let s2 = row(&batch.next_obs, 0, b);
+            let head = mlp(&s.actors, 0, &s2);
+            let mut a2 = Vec::new();
+            let mut logp = 0.0;
+            for d in 0..act {
+                let (mu, ls) = (head[d], head[act + d].clamp(-20.0, 2.0));
+                let e = eps[b as usize * act + d] as f64;
+                let u = mu + ls.exp() * e;
+                logp += -0.5 * e * e
+                    - ls
+                    - 0.5 * (2.0 * std::f64::consts::PI).ln()
+                    - (1.0 - u.tanh().powi(2) + 1e-6).ln();
+                a2.push(u.tanh() as f32);
+            }
+            let x2: Vec<f32> = s2.iter().chain(&a2).copied().collect();
+            let qmin = subsets
+                .iter()
+                .map(|&j| mlp(&target_before, j, &x2)[0])
+                .fold(f64::INFINITY, f64::min);
+            let (r, d) = (
+                batch.reward.double_value(&[0, b]),
+                batch.terminated.double_value(&[0, b]),
+            );
+            ys.push(r + 0.99 * (1.0 - d) * (qmin - alpha * logp));
+        }
+        let critics_before = s.critics.copy();
+        let (loss, _) = s.update_critics_on(&batch, &subsets);
+        // The reported loss: mean over critics of mean_B ½(Q_j(s, a) − y)², each critic on its own.
+        let mut want = 0.0;
+        for j in 0..5 {
+            for b in 0..cfg.batch_size as i64 {
+                let x: Vec<f32> = row(&batch.obs, 0, b)
+                    .into_iter()
+                    .chain(row(&batch.act, 0, b))
+                    .collect();
+                want += 0.5 * (mlp(&critics_before, j, &x)[0] - ys[b as usize]).powi(2);
+            }
+        }
+        want /= (5 * cfg.batch_size) as f64;
+        assert!(
+            (loss - want).abs() < 1e-4 * want.max(1.0),
+            "loss {loss} vs hand-computed {want}"
+        );
+        // Adam's first step moves every weight by lr·g/(|g| + ε): at most lr.
+        for j in 0..5i64 {
+            let after = s.critics.member_flat(j);
+            let moved = after
+                .iter()
+                .zip(&before[j as usize])
+                .filter(|(a, b)| (*a - *b).abs() > 0.5 * cfg.lr as f32)
+                .count();
+            assert!(after
+                .iter()
+                .zip(&before[j as usize])
+                .all(|(a, b)| (a - b).abs() <= cfg.lr as f32 * 1.001));
+            assert!(
+                moved > after.len() / 5,
+                "critic {j}: weights with a gradient take a full first Adam step"
+            );
+        }
+        // Line 13: Polyak after the update.
+        for j in 0..5i64 {
+            let (t_before, t_after, online) = (
+                target_before.member_flat(j),
+                s.target_critics.member_flat(j),
+                s.critics.member_flat(j),
+            );
+            for q in 0..t_before.len() {
+                assert!((t_after[q] - (0.995 * t_before[q] + 0.005 * online[q])).abs() < 1e-6);
+            }
+        }
+    }
+
+    /// Both sharing modes and every formation run, and per-critic draws N batches per update.
+    #[test]
+    fn every_mode_trains_and_stays_finite() {
+        for sharing in [Sharing::PerUpdate, Sharing::PerCritic] {
+            for target in [
+                Formation::MaxMin,
+                Formation::MinMin,
+                Formation::MinMax,
+                Formation::MaxMax,
+            ] {
+                let cfg = AlgoConfig {
+                    sharing,
+                    target,
+                    ..small(3, 4, 2)
+                };
+                let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 1);
+                let mut rb = filled_replay(3, 2, 100);
+                let stats = s.train_round(&mut rb, 1);
+                assert!(
+                    stats.critic_loss.is_finite() && stats.actor_loss.iter().all(|v| v.is_finite())
+                );
+                assert_eq!(stats.kl_to_best.len(), 3);
+                assert_eq!((s.critic_updates, s.actor_updates), (2, 1));
+            }
+        }
+    }
+
+    /// Line 18 in isolation: with the critics' signal and the entropy term switched off (Q ≡ 0,
+    /// α = 0), only the KD term moves the actors. The best actor then stays put and every other
+    /// actor's KL to it falls toward 0.
+    #[test]
+    fn distillation_pulls_actors_toward_the_best() {
+        let cfg = AlgoConfig {
+            kd_weight: 1.0,
+            fixed_alpha: Some(0.0),
+            lr: 1e-2,
+            ..small(3, 2, 2)
+        };
+        let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 2);
+        tch::no_grad(|| {
+            let last = s.critics.layers.last().unwrap();
+            let _ = last.weight.shallow_clone().zero_();
+            let _ = last.bias.shallow_clone().zero_();
+        });
+        let mut rb = filled_replay(3, 2, 100);
+        let best_before = s.actor_weights(2);
+        let mut stats = RoundStats::default();
+        s.update_actors(&mut rb, 2, &mut stats);
+        let first = stats.kl_to_best.clone();
+        for _ in 0..100 {
+            s.update_actors(&mut rb, 2, &mut stats);
+        }
+        assert_eq!(
+            s.actor_weights(2),
+            best_before,
+            "the best actor has no KD term and (here) no other loss"
+        );
+        assert!(stats.kl_to_best[2].abs() < 1e-6);
+        for i in 0..2 {
+            assert!(
+                stats.kl_to_best[i] < 0.1 * first[i],
+                "actor {i}: KL to the best {} → {}",
+                first[i],
+                stats.kl_to_best[i]
+            );
+        }
+    }
+
+    /// A checkpoint restores networks, optimiser moments, temperatures and the RNG exactly: the
+    /// resumed learner's next round equals the original's.
+    #[test]
+    fn checkpoint_round_trip_continues_identically() {
+        use crate::checkpoint::{self, TrainingState};
+        let cfg = small(2, 3, 2);
+        let mut a = Selkd::new(&cfg, 3, 2, Device::Cpu, 4);
+        let mut rb = filled_replay(3, 2, 100);
+        for _ in 0..3 {
+            a.train_round(&mut rb, 0);
+        }
+        let dir = std::env::temp_dir().join(format!("selkd-ckpt-test-{}", std::process::id()));
+        let state = TrainingState {
+            config: crate::config::Config::default(),
+            rng: a.rng.clone(),
+            critic_updates: a.critic_updates,
+            actor_updates: a.actor_updates,
+            adam_steps: checkpoint::adam_steps(&a),
+            received: vec![0; 2],
+            inserted: 0,
+            lockstep_rounds: 0,
+            weights_version: 0,
+            eval_epoch: 0,
+            ranking: crate::ranking::Ranking::new(2, 1),
+            wall_seconds: 0.0,
+        };
+        checkpoint::save(&dir, &a, Some(&mut rb), &state).unwrap();
+        let mut b = Selkd::new(&cfg, 3, 2, Device::Cpu, 99);
+        let mut rb2 = ReplayBuffer::new(1000, 3, 2, Device::Cpu);
+        checkpoint::load(&dir, &mut b, &mut rb2).unwrap();
+        assert_eq!(rb2.len(), rb.len());
+        a.train_round(&mut rb, 1);
+        b.train_round(&mut rb2, 1);
+        for i in 0..2 {
+            assert_eq!(a.actor_weights(i), b.actor_weights(i));
+        }
+        assert_eq!(
+            a.target_critics.member_flat(2),
+            b.target_critics.member_flat(2)
+        );
+        assert_eq!(
+            Vec::<f32>::try_from(a.alpha()).unwrap(),
+            Vec::<f32>::try_from(b.alpha()).unwrap()
+        );
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
