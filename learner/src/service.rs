@@ -688,3 +688,72 @@ fn same_control(a: &Control, b: &Control) -> bool {
         && a.stop == b.stop
         && a.budget == b.budget
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn learner(mode: Mode) -> (Learner, PathBuf) {
+        let dir = std::env::temp_dir().join(format!(
+            "selkd-service-test-{}-{:?}",
+            std::process::id(),
+            mode
+        ));
+        let mut cfg = Config::default();
+        cfg.run.mode = mode;
+        cfg.algo.actors = 2;
+        (Learner::new(cfg, &dir, None).unwrap(), dir)
+    }
+
+    fn header(worker: u32) -> TransitionHeader {
+        TransitionHeader {
+            worker,
+            obs_dim: 3,
+            act_dim: 1,
+            episode_return: f64::NAN,
+            policy_version: 1,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn non_finite_and_malformed_transitions_are_counted_and_never_stored() {
+        for mode in [Mode::Sync, Mode::Async] {
+            let (mut l, dir) = learner(mode);
+            let good = [0.1f32, 0.2, 0.3, 0.5, -1.0, 0.4, 0.5, 0.6, 0.0, 0.0];
+            let mut nan = good;
+            nan[4] = f32::NAN;
+            let mut inf = good;
+            inf[6] = f32::INFINITY;
+            l.on_transition(header(0), &nan);
+            l.on_transition(header(1), &inf);
+            l.on_transition(header(0), &good[..9]); // one value short
+            l.on_transition(header(7), &good); // no such worker
+            assert_eq!((l.dropped_nonfinite, l.dropped_malformed), (2, 2));
+            assert_eq!(
+                l.replay.len() + l.pending.iter().map(|q| q.len()).sum::<usize>(),
+                0
+            );
+            l.on_transition(header(1), &good);
+            assert_eq!(l.replay.len() + l.pending[1].len(), 1);
+            let _ = std::fs::remove_dir_all(dir);
+        }
+    }
+
+    #[test]
+    fn sync_rounds_store_one_transition_per_actor_in_actor_order() {
+        let (mut l, dir) = learner(Mode::Sync);
+        let row = |v: f32| [v, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        // Worker 1 runs ahead by two steps; nothing is stored until worker 0's step arrives.
+        l.on_transition(header(1), &row(10.0));
+        l.on_transition(header(1), &row(11.0));
+        l.advance_sync().unwrap();
+        assert_eq!(l.inserted, 0);
+        l.on_transition(header(0), &row(0.0));
+        l.advance_sync().unwrap();
+        assert_eq!((l.inserted, l.lockstep_rounds), (2, 1));
+        let stored = Vec::<f32>::try_from(l.replay.export().select(1, 0)).unwrap();
+        assert_eq!(stored, vec![0.0, 10.0], "actor 0's step, then actor 1's");
+        let _ = std::fs::remove_dir_all(dir);
+    }
+}

@@ -87,3 +87,37 @@ fn bad_config_gets_a_one_line_error_and_no_run() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn async_mode_holds_the_update_to_insert_ratio_and_bounds_policy_lag() {
+    let dir = temp_dir("async");
+    let sets = small_run(&[
+        "algo.actors=2",
+        "run.mode=async",
+        "run.total_env_steps=4000",
+        "algo.utd=2",
+        "async.max_policy_lag=3",
+        "async.ratio_tolerance=20",
+    ]);
+    let out = run(train(&dir, &sets));
+    assert_success(&out, &dir);
+    let progress = log(&dir, "progress.jsonl");
+    let last: serde_json::Value = serde_json::from_str(progress.lines().last().unwrap()).unwrap();
+    let (ratio, target) = (
+        last["updates_per_transition"].as_f64().unwrap(),
+        last["target_updates_per_transition"].as_f64().unwrap(),
+    );
+    eprintln!("async: {ratio:.3} critic updates per transition (target {target}), policy lag mean {} max {}", last["policy_lag_mean"], last["policy_lag_max"]);
+    assert_eq!(target, 1.0, "G/K = 2/2");
+    // The learner may trail by at most the tolerance (20 updates over 3600 post-warm-up transitions).
+    assert!(
+        (ratio - target).abs() <= 0.02 * target,
+        "update ratio {ratio} strays from {target}"
+    );
+    assert!(last["policy_lag_mean"].as_f64().unwrap() <= 3.0);
+    assert_eq!(last["env_steps"].as_u64(), Some(4000));
+    let (h, rows) = metrics(&dir);
+    assert_eq!(rows.len(), 4, "one metrics row per epoch");
+    assert!(column(&h, &rows, "critic_updates").last().unwrap() > &3000.0);
+    let _ = std::fs::remove_dir_all(&dir);
+}
