@@ -255,11 +255,15 @@ impl Learner {
         let mut rates = (0.0, 0.0);
         let mut finishing_since: Option<Instant> = None;
         let mut outcome = Outcome::Finished;
+        let mut trained_last = false;
 
         loop {
             // Wake on any worker message (or every 50 ms to keep progress, checkpoints and stop
             // handling responsive).
-            wake.timed_wait(|_| {}, Duration::from_millis(50))?;
+            // A pass that trained does not wait: more rounds may be due.
+            if !trained_last {
+                wake.timed_wait(|_| {}, Duration::from_millis(50))?;
+            }
             while let Some(r) = reports.receive()? {
                 self.on_report(r.payload());
             }
@@ -273,6 +277,7 @@ impl Learner {
             if trained {
                 publish_weights(&self.selkd, self.weights_version)?;
             }
+            trained_last = trained;
             self.log_epochs()?;
             if self.cfg.run.checkpoint_every > 0
                 && self.inserted >= self.next_checkpoint
@@ -473,16 +478,15 @@ impl Learner {
         }
     }
 
-    /// Train as many rounds as the inserted data pays for (never ahead of it).
+    /// At most one round per pass, and only when the inserted data pays for it (never ahead of
+    /// it). One round per pass means the new weights and control go out before the next round, so
+    /// a worker's behaviour policy trails by at most `max_policy_lag` plus the round in flight.
     fn advance_async(&mut self) -> Result<bool> {
-        let due = self.limiter.rounds_due(self.inserted);
-        let mut trained = false;
-        let t0 = Instant::now();
-        while self.selkd.actor_updates < due && t0.elapsed() < Duration::from_millis(500) {
+        if self.selkd.actor_updates < self.limiter.rounds_due(self.inserted) {
             self.train_round();
-            trained = true;
+            return Ok(true);
         }
-        Ok(trained)
+        Ok(false)
     }
 
     fn train_round(&mut self) {

@@ -114,7 +114,13 @@ fn async_mode_holds_the_update_to_insert_ratio_and_bounds_policy_lag() {
         (ratio - target).abs() <= 0.02 * target,
         "update ratio {ratio} strays from {target}"
     );
-    assert!(last["policy_lag_mean"].as_f64().unwrap() <= 3.0);
+    // Workers never act with weights more than 3 versions old; a transition in flight while the
+    // learner finishes one more round arrives one version later still.
+    assert!(
+        last["policy_lag_max"].as_u64().unwrap() <= 3 + 1,
+        "policy lag {}",
+        last["policy_lag_max"]
+    );
     assert_eq!(last["env_steps"].as_u64(), Some(4000));
     let (h, rows) = metrics(&dir);
     assert_eq!(rows.len(), 4, "one metrics row per epoch");
