@@ -5,6 +5,7 @@
 //! everything cleanly on Ctrl-C or when the env-step budget is reached.
 
 mod bench;
+mod plot;
 mod train;
 
 use clap::{Parser, Subcommand};
@@ -23,6 +24,14 @@ struct Cli {
 enum Command {
     /// Train: a learner and K actor workers on this host.
     Train(train::TrainArgs),
+    /// Learning curves of one run (every actor) or several (mean ± ½ sd of the best actor) as SVG.
+    Plot {
+        /// Run directories (each holds metrics.csv).
+        runs: Vec<std::path::PathBuf>,
+        /// Output file (default: FIRST_RUN/returns.svg).
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+    },
     /// Benchmarks (commands, not tests).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -33,6 +42,10 @@ fn main() {
     let result = match cli.command {
         Command::Train(args) => train::run(args),
         Command::Bench(b) => bench::run(b).map(|()| 0),
+        Command::Plot { runs, out } => plot::run(&runs, out).map(|p| {
+            eprintln!("selkd: wrote {}", p.display());
+            0
+        }),
     };
     match result {
         Ok(code) => std::process::exit(code),

@@ -60,6 +60,21 @@ fn selkd_learns_pendulum_well_beyond_a_random_policy() {
     );
     assert!(dir.join("checkpoints/final/model.safetensors").exists());
     assert!(dir.join("config.toml").exists());
+    // The learning curve as a picture.
+    let mut plot = std::process::Command::new(bin("selkd"));
+    plot.arg("plot").arg(&dir);
+    let out = run(plot);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let svg = std::fs::read_to_string(dir.join("returns.svg")).unwrap();
+    assert_eq!(
+        svg.matches("<polyline").count(),
+        k + 1,
+        "one curve per actor and the best"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

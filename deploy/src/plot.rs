@@ -1,0 +1,239 @@
+//! `selkd plot RUN_DIR...`: learning curves from `metrics.csv` as an SVG (no plotting library:
+//! the picture is simple enough to write by hand, and an SVG opens in any browser).
+//!
+//! One run: every actor's evaluation return per epoch, the best of them in bold. Several runs
+//! (e.g. seeds): the mean over runs of the best actor's return, with a ±½ standard-deviation band,
+//! as the paper draws its curves.
+
+use anyhow::{bail, Context, Result};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+struct Curve {
+    steps: Vec<f64>,
+    /// `[actor][epoch]`
+    actors: Vec<Vec<f64>>,
+}
+
+fn read(run: &Path) -> Result<Curve> {
+    let path = run.join("metrics.csv");
+    let text = std::fs::read_to_string(&path).with_context(|| {
+        format!(
+            "reading {} (is {} a run directory?)",
+            path.display(),
+            run.display()
+        )
+    })?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines
+        .next()
+        .context("metrics.csv is empty")?
+        .split(',')
+        .collect();
+    let steps_col = header
+        .iter()
+        .position(|h| *h == "env_steps")
+        .context("metrics.csv has no env_steps column")?;
+    let eval_cols: Vec<usize> = header
+        .iter()
+        .enumerate()
+        .filter(|(_, h)| h.starts_with("eval_return_"))
+        .map(|(i, _)| i)
+        .collect();
+    let mut c = Curve {
+        steps: Vec::new(),
+        actors: vec![Vec::new(); eval_cols.len()],
+    };
+    for l in lines {
+        let v: Vec<f64> = l
+            .split(',')
+            .map(|x| x.parse().unwrap_or(f64::NAN))
+            .collect();
+        c.steps.push(v[steps_col]);
+        for (a, &col) in eval_cols.iter().enumerate() {
+            c.actors[a].push(v[col]);
+        }
+    }
+    if c.steps.is_empty() {
+        bail!("{} has no epochs yet", path.display());
+    }
+    Ok(c)
+}
+
+fn best(c: &Curve) -> Vec<f64> {
+    (0..c.steps.len())
+        .map(|e| {
+            c.actors
+                .iter()
+                .map(|a| a[e])
+                .filter(|v| v.is_finite())
+                .fold(f64::NAN, f64::max)
+        })
+        .collect()
+}
+
+pub fn run(runs: &[PathBuf], out: Option<PathBuf>) -> Result<PathBuf> {
+    if runs.is_empty() {
+        bail!("name at least one run directory");
+    }
+    let curves = runs.iter().map(|r| read(r)).collect::<Result<Vec<_>>>()?;
+    let out = out.unwrap_or_else(|| runs[0].join("returns.svg"));
+    // Series: (points, stroke width, colour) and an optional band.
+    let palette = [
+        "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
+        "#bcbd22", "#17becf",
+    ];
+    let mut lines: Vec<(Vec<(f64, f64)>, f64, String, String)> = Vec::new();
+    let mut band: Vec<(f64, f64, f64)> = Vec::new();
+    let title;
+    if curves.len() == 1 {
+        let c = &curves[0];
+        for (a, ys) in c.actors.iter().enumerate() {
+            lines.push((
+                c.steps.iter().copied().zip(ys.iter().copied()).collect(),
+                1.2,
+                palette[a % palette.len()].into(),
+                format!("actor {a}"),
+            ));
+        }
+        lines.push((
+            c.steps.iter().copied().zip(best(c)).collect(),
+            3.0,
+            "#000".into(),
+            "best actor".into(),
+        ));
+        title = format!("{}: evaluation return per actor", runs[0].display());
+    } else {
+        let n = curves.iter().map(|c| c.steps.len()).min().unwrap();
+        let mut mean_line = Vec::new();
+        for e in 0..n {
+            let vals: Vec<f64> = curves
+                .iter()
+                .map(|c| best(c)[e])
+                .filter(|v| v.is_finite())
+                .collect();
+            let mean = vals.iter().sum::<f64>() / vals.len().max(1) as f64;
+            let sd = (vals.iter().map(|v| (v - mean).powi(2)).sum::<f64>()
+                / vals.len().max(1) as f64)
+                .sqrt();
+            mean_line.push((curves[0].steps[e], mean));
+            band.push((curves[0].steps[e], mean - sd / 2.0, mean + sd / 2.0));
+        }
+        lines.push((
+            mean_line,
+            2.5,
+            palette[0].into(),
+            format!("best actor, mean of {} runs (band ±½ sd)", curves.len()),
+        ));
+        title = format!("{} runs: evaluation return of the best actor", curves.len());
+    }
+    let pts = lines
+        .iter()
+        .flat_map(|l| l.0.iter().copied())
+        .chain(band.iter().flat_map(|b| [(b.0, b.1), (b.0, b.2)]))
+        .filter(|p| p.1.is_finite());
+    let (mut x0, mut x1, mut y0, mut y1) = (0.0f64, f64::MIN, f64::MAX, f64::MIN);
+    for (x, y) in pts {
+        x1 = x1.max(x);
+        y0 = y0.min(y);
+        y1 = y1.max(y);
+    }
+    if y1 <= y0 {
+        y0 -= 1.0;
+        y1 += 1.0;
+    }
+    let pad = (y1 - y0) * 0.05;
+    (y0, y1) = (y0 - pad, y1 + pad);
+    x0 = x0.min(0.0);
+    let (w, h, l, r, t, b) = (900.0, 540.0, 80.0, 220.0, 40.0, 60.0);
+    let sx = |x: f64| l + (x - x0) / (x1 - x0).max(1e-9) * (w - l - r);
+    let sy = |y: f64| t + (y1 - y) / (y1 - y0) * (h - t - b);
+    let mut svg = String::new();
+    writeln!(
+        svg,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="13">"#
+    )?;
+    writeln!(
+        svg,
+        r#"<rect width="100%" height="100%" fill="white"/><text x="{l}" y="24" font-size="15">{}</text>"#,
+        escape(&title)
+    )?;
+    for i in 0..=5 {
+        let yv = y0 + (y1 - y0) * i as f64 / 5.0;
+        let xv = x0 + (x1 - x0) * i as f64 / 5.0;
+        writeln!(
+            svg,
+            r##"<line x1="{l}" x2="{}" y1="{y}" y2="{y}" stroke="#ddd"/><text x="{}" y="{}" text-anchor="end">{yv:.0}</text>"##,
+            w - r,
+            l - 6.0,
+            sy(yv) + 4.0,
+            y = sy(yv)
+        )?;
+        writeln!(
+            svg,
+            r#"<text x="{}" y="{}" text-anchor="middle">{xv:.0}</text>"#,
+            sx(xv),
+            h - b + 18.0
+        )?;
+    }
+    writeln!(
+        svg,
+        r#"<text x="{}" y="{}" text-anchor="middle">env steps (all actors together)</text>"#,
+        (l + w - r) / 2.0,
+        h - 14.0
+    )?;
+    writeln!(
+        svg,
+        r#"<text transform="translate(18,{}) rotate(-90)" text-anchor="middle">undiscounted evaluation return</text>"#,
+        (t + h - b) / 2.0
+    )?;
+    if !band.is_empty() {
+        let upper: Vec<String> = band
+            .iter()
+            .map(|p| format!("{:.1},{:.1}", sx(p.0), sy(p.2)))
+            .collect();
+        let lower: Vec<String> = band
+            .iter()
+            .rev()
+            .map(|p| format!("{:.1},{:.1}", sx(p.0), sy(p.1)))
+            .collect();
+        writeln!(
+            svg,
+            r#"<polygon points="{} {}" fill="{}" fill-opacity="0.25"/>"#,
+            upper.join(" "),
+            lower.join(" "),
+            palette[0]
+        )?;
+    }
+    for (i, (points, width, colour, label)) in lines.iter().enumerate() {
+        let p: Vec<String> = points
+            .iter()
+            .filter(|p| p.1.is_finite())
+            .map(|p| format!("{:.1},{:.1}", sx(p.0), sy(p.1)))
+            .collect();
+        writeln!(
+            svg,
+            r#"<polyline points="{}" fill="none" stroke="{colour}" stroke-width="{width}"/>"#,
+            p.join(" ")
+        )?;
+        let ly = t + 16.0 + 20.0 * i as f64;
+        writeln!(
+            svg,
+            r#"<line x1="{}" x2="{}" y1="{ly}" y2="{ly}" stroke="{colour}" stroke-width="{width}"/><text x="{}" y="{}">{}</text>"#,
+            w - r + 12.0,
+            w - r + 36.0,
+            w - r + 42.0,
+            ly + 4.0,
+            escape(label)
+        )?;
+    }
+    writeln!(svg, "</svg>")?;
+    std::fs::write(&out, svg).with_context(|| format!("writing {}", out.display()))?;
+    Ok(out)
+}
+
+fn escape(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+}
