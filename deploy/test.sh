@@ -6,4 +6,11 @@ cd "$root"
 bash deploy/setup.sh
 # The end-to-end tests start the real binaries: build them first, in the tests' profile.
 cargo build --release --workspace --locked
-cargo test --release --workspace --locked --no-fail-fast "$@"
+log=$(mktemp)
+trap 'rm -f "$log"' EXIT
+status=0
+cargo test --release --workspace --locked --no-fail-fast "$@" 2>&1 | tee "$log" || status=$?
+# One closing line for the whole suite (cargo's own last line is that of an empty doc-test run).
+awk '/^test result:/ { for (i = 1; i <= NF; i++) { if ($i ~ /^passed/) p += $(i-1); if ($i ~ /^failed/) f += $(i-1) } }
+     END { printf "%d passed, %d failed\n", p, f }' "$log"
+exit "$status"
