@@ -153,3 +153,43 @@ fn two_runs_at_once_do_not_cross_and_sync_runs_reproduce_bit_for_bit() {
         let _ = std::fs::remove_dir_all(d);
     }
 }
+
+#[test]
+fn a_run_resumes_from_its_checkpoint_with_workers_on_the_saved_weights() {
+    let (first, second) = (temp_dir("resume-a"), temp_dir("resume-b"));
+    let sets = small_run(&[
+        "algo.actors=2",
+        "run.total_env_steps=2000",
+        "run.checkpoint_replay=true",
+    ]);
+    assert_success(&run(train(&first, &sets)), &first);
+    let ckpt = first.join("checkpoints/final");
+    let state: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(ckpt.join("state.json")).unwrap()).unwrap();
+    let saved_version = state["weights_version"].as_u64().unwrap();
+    let mut more = small_run(&[
+        "algo.actors=2",
+        "run.total_env_steps=3000",
+        "run.checkpoint_replay=true",
+    ]);
+    more.extend(["--resume".to_string(), ckpt.display().to_string()]);
+    assert_success(&run(train(&second, &more)), &second);
+    let learner = log(&second, "learner.log");
+    assert!(learner.contains("resumed from"), "{learner}");
+    let joined =
+        format!("holding weights version {saved_version}; learner at version {saved_version}");
+    assert_eq!(
+        learner.matches(&joined).count(),
+        2,
+        "both workers start on the checkpoint's weights:\n{learner}"
+    );
+    let (h, rows) = metrics(&second);
+    assert_eq!(
+        column(&h, &rows, "env_steps"),
+        vec![3000.0],
+        "only the new epoch is logged in the new run"
+    );
+    for d in [first, second] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
