@@ -39,9 +39,6 @@ struct Args {
     connect_timeout: f64,
 }
 
-/// Exit code for "this worker cannot join this run": the launcher does not restart it.
-const EXIT_MISMATCH: i32 = 2;
-
 fn main() {
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
@@ -53,12 +50,23 @@ fn main() {
     match run(&args) {
         Ok(()) => {}
         Err(e) => {
-            let mismatch = e.downcast_ref::<selkd_protocol::ProtocolError>().is_some();
+            let mismatch = e.downcast_ref::<selkd_protocol::ProtocolError>().is_some()
+                || e.downcast_ref::<CannotJoin>().is_some()
+                || e.downcast_ref::<selkd_envs::EnvError>().is_some();
             eprintln!("actor-worker {}: error: {e:#}", args.worker);
-            std::process::exit(if mismatch { EXIT_MISMATCH } else { 1 });
+            std::process::exit(if mismatch {
+                selkd_protocol::EXIT_CANNOT_JOIN
+            } else {
+                1
+            });
         }
     }
 }
+
+/// This worker's arguments cannot work with this run (retrying would not help).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+struct CannotJoin(String);
 
 /// Seeds derived from (run seed, worker, generation, purpose) so every stream differs.
 fn seed_for(seed: u64, worker: usize, generation: u32, purpose: u64) -> u64 {

@@ -13,8 +13,6 @@ use tokio::sync::mpsc;
 
 /// The quick default: learning on Pendulum within a few minutes on 2 cores.
 const QUICK_CONFIG: &str = include_str!("../../configs/quick.toml");
-/// Worker exit code meaning "this worker cannot join this run": restarting would not help.
-const WORKER_EXIT_MISMATCH: i32 = 2;
 
 #[derive(Args, Debug)]
 pub struct TrainArgs {
@@ -251,7 +249,7 @@ async fn supervise(
                     if code == Some(0) {
                         continue; // the learner told it to stop
                     }
-                    if code == Some(WORKER_EXIT_MISMATCH) {
+                    if code == Some(selkd_protocol::EXIT_CANNOT_JOIN) {
                         failure = Some(format!("worker {worker} cannot join the run; see {}", run_dir.join("logs").join(format!("worker-{worker}.log")).display()));
                         stopping = true;
                         unsafe { libc::kill(learner_pid, libc::SIGTERM) };

@@ -455,3 +455,7 @@ pub mod services {
 pub fn learner_node_name(run_id: &str) -> String {
     format!("learner-{run_id}")
 }
+
+/// A worker's exit code for "this worker cannot join this run" (handshake mismatch, bad
+/// arguments): restarting it would not help, so the launcher fails the run instead.
+pub const EXIT_CANNOT_JOIN: i32 = 2;
