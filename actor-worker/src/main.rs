@@ -102,12 +102,13 @@ fn run(args: &Args) -> Result<()> {
     };
     selkd_protocol::check_peer(&control, spec.id, spec.obs_dim, spec.act_dim)?;
     if args.worker >= control.actors as usize {
-        bail!(
+        let msg = format!(
             "--worker {} is out of range: the run has {} actors (0..{})",
             args.worker,
             control.actors,
             control.actors - 1
         );
+        return Err(CannotJoin(msg).into());
     }
     let k = control.actors as usize;
     let hidden: Vec<usize> = control.hidden[..control.hidden_layers as usize]

@@ -199,15 +199,29 @@ fn a_worker_that_does_not_fit_the_run_is_refused_with_a_clear_error() {
     let dir = temp_dir("refuse");
     let run_id = format!("refuse{}", std::process::id());
     let mut learner = std::process::Command::new(bin("learner"));
-    learner.args(["--run-id", &run_id, "--set", "algo.actors=2", "--run-dir"]).arg(&dir);
+    learner
+        .args(["--run-id", &run_id, "--set", "algo.actors=2", "--run-dir"])
+        .arg(&dir);
     let mut learner = spawn(learner);
     let mut worker = std::process::Command::new(bin("actor-worker"));
-    worker.args(["--run-id", &run_id, "--worker", "5", "--env", "pendulum", "--connect-timeout", "30"]);
+    worker.args([
+        "--run-id",
+        &run_id,
+        "--worker",
+        "5",
+        "--env",
+        "pendulum",
+        "--connect-timeout",
+        "30",
+    ]);
     let out = run(worker);
     let _ = learner.kill();
     let _ = learner.wait();
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
-    assert!(err.contains("--worker 5 is out of range: the run has 2 actors"), "{err}");
+    assert!(
+        err.contains("--worker 5 is out of range: the run has 2 actors"),
+        "{err}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
