@@ -346,73 +346,87 @@ mod tests {
         Vec::<f32>::try_from(t.get(g).get(b).contiguous()).unwrap()
     }
 
-    /// K = 1: the critic target is REDQ's, `r + γ(1−d)(min_{j∈𝓜} Q̄_j(s', ã') − α log π(ã'|s'))`,
-    /// recomputed here row by row with plain loops over separate networks; and one update moves
-    /// each critic by Adam's first step on its own loss (`−lr·sign(g)`).
-    #[test]
-    fn one_actor_update_is_redq_computed_by_hand() {
-        let (obs, act) = (3, 2);
-        let cfg = small(1, 5, 2);
+    /// The in-target max-min update, by hand: `y = r + γ(1−d) max_i (min_{j∈𝓜} Q̄_j(s', ã'_i) − α_i log π_i)`.
+    /// K = 1 is REDQ (M = 2 of N) and Maxmin Q-learning (M = N); `per-critic` is Algorithm 1's
+    /// literal form. The target and each
+    /// critic's loss are recomputed here row by row with plain loops over separate networks. One
+    /// update then moves each critic by Adam's first step (at most lr) and the targets by Polyak.
+    fn check_critic_update(k: usize, sharing: Sharing, m: usize) {
+        let (obs, act, n) = (3, 2, 5);
+        let cfg = AlgoConfig {
+            sharing,
+            ..small(k, n, m)
+        };
+        let b_size = cfg.batch_size as i64;
         let mut s = Selkd::new(&cfg, obs, act, Device::Cpu, 3);
         let mut rb = filled_replay(obs, act, 200);
-        let mut draw_rng = Pcg64::seed_from_u64(9);
-        let batch = rb.sample(1, cfg.batch_size, &mut draw_rng);
-        let subsets = vec![4i64, 1];
-        // The noise update_critics_on will draw: the learner's next K·B·A normals.
+        let groups = if sharing == Sharing::PerCritic { n } else { 1 };
+        let batch = rb.sample(groups, cfg.batch_size, &mut Pcg64::seed_from_u64(9));
+        let subsets: Vec<Vec<i64>> = (0..groups)
+            .map(|g| (0..m).map(|i| ((g + 3 * i + 4) % n) as i64).collect())
+            .collect();
+        // The noise update_critics_on will draw: the learner's next K·groups·B·A normals.
         let mut peek = s.rng.clone();
-        let eps: Vec<f32> = (0..cfg.batch_size * act)
+        let eps: Vec<f32> = (0..k * groups * cfg.batch_size * act)
             .map(|_| StandardNormal.sample(&mut peek))
             .collect();
-        let before: Vec<Vec<f32>> = (0..5).map(|j| s.critics.member_flat(j)).collect();
-        let target_before = s.target_critics.copy();
+        let before: Vec<Vec<f32>> = (0..n as i64).map(|j| s.critics.member_flat(j)).collect();
+        let (critics_before, target_before) = (s.critics.copy(), s.target_critics.copy());
         let alpha = 1.0; // log α starts at 0
-        let mut ys = Vec::new();
-        for b in 0..cfg.batch_size as i64 {
-            let s2 = row(&batch.next_obs, 0, b);
-            let head = mlp(&s.actors, 0, &s2);
-            let mut a2 = Vec::new();
-            let mut logp = 0.0;
-            for d in 0..act {
-                let (mu, ls) = (head[d], head[act + d].clamp(-20.0, 2.0));
-                let e = eps[b as usize * act + d] as f64;
-                let u = mu + ls.exp() * e;
-                logp += -0.5 * e * e
-                    - ls
-                    - 0.5 * (2.0 * std::f64::consts::PI).ln()
-                    - (1.0 - u.tanh().powi(2) + 1e-6).ln();
-                a2.push(u.tanh() as f32);
+        let mut y = vec![vec![0.0; cfg.batch_size]; groups];
+        for g in 0..groups {
+            for b in 0..b_size {
+                let s2 = row(&batch.next_obs, g as i64, b);
+                // max over actors of the soft value under the subset's min.
+                let mut best = f64::NEG_INFINITY;
+                for i in 0..k {
+                    let head = mlp(&s.actors, i as i64, &s2);
+                    let (mut a2, mut logp) = (Vec::new(), 0.0);
+                    for d in 0..act {
+                        let (mu, ls) = (head[d], head[act + d].clamp(-20.0, 2.0));
+                        let e =
+                            eps[((i * groups + g) * cfg.batch_size + b as usize) * act + d] as f64;
+                        let u = mu + ls.exp() * e;
+                        logp += -0.5 * e * e
+                            - ls
+                            - 0.5 * (2.0 * std::f64::consts::PI).ln()
+                            - (1.0 - u.tanh().powi(2) + 1e-6).ln();
+                        a2.push(u.tanh() as f32);
+                    }
+                    let x2: Vec<f32> = s2.iter().chain(&a2).copied().collect();
+                    let qmin = subsets[g]
+                        .iter()
+                        .map(|&j| mlp(&target_before, j, &x2)[0])
+                        .fold(f64::INFINITY, f64::min);
+                    best = best.max(qmin - alpha * logp);
+                }
+                let (r, d) = (
+                    batch.reward.double_value(&[g as i64, b]),
+                    batch.terminated.double_value(&[g as i64, b]),
+                );
+                y[g][b as usize] = r + 0.99 * (1.0 - d) * best;
             }
-            let x2: Vec<f32> = s2.iter().chain(&a2).copied().collect();
-            let qmin = subsets
-                .iter()
-                .map(|&j| mlp(&target_before, j, &x2)[0])
-                .fold(f64::INFINITY, f64::min);
-            let (r, d) = (
-                batch.reward.double_value(&[0, b]),
-                batch.terminated.double_value(&[0, b]),
-            );
-            ys.push(r + 0.99 * (1.0 - d) * (qmin - alpha * logp));
         }
-        let critics_before = s.critics.copy();
-        let (loss, _) = s.update_critics_on(&batch, &subsets);
-        // The reported loss: mean over critics of mean_B ½(Q_j(s, a) − y)², each critic on its own.
+        let flat_subsets: Vec<i64> = subsets.concat();
+        let (loss, _) = s.update_critics_on(&batch, &flat_subsets);
+        // The reported loss: mean over critics of mean_B ½(Q_j(s, a) − y)², critic j on its own group.
         let mut want = 0.0;
-        for j in 0..5 {
-            for b in 0..cfg.batch_size as i64 {
-                let x: Vec<f32> = row(&batch.obs, 0, b)
+        for j in 0..n {
+            let g = if groups == 1 { 0 } else { j };
+            for b in 0..b_size {
+                let x: Vec<f32> = row(&batch.obs, g as i64, b)
                     .into_iter()
-                    .chain(row(&batch.act, 0, b))
+                    .chain(row(&batch.act, g as i64, b))
                     .collect();
-                want += 0.5 * (mlp(&critics_before, j, &x)[0] - ys[b as usize]).powi(2);
+                want += 0.5 * (mlp(&critics_before, j as i64, &x)[0] - y[g][b as usize]).powi(2);
             }
         }
-        want /= (5 * cfg.batch_size) as f64;
+        want /= (n * cfg.batch_size) as f64;
         assert!(
             (loss - want).abs() < 1e-4 * want.max(1.0),
-            "loss {loss} vs hand-computed {want}"
+            "K={k} {sharing:?} M={m}: loss {loss} vs hand-computed {want}"
         );
-        // Adam's first step moves every weight by lr·g/(|g| + ε): at most lr.
-        for j in 0..5i64 {
+        for j in 0..n as i64 {
             let after = s.critics.member_flat(j);
             let moved = after
                 .iter()
@@ -427,18 +441,36 @@ mod tests {
                 moved > after.len() / 5,
                 "critic {j}: weights with a gradient take a full first Adam step"
             );
-        }
-        // Line 13: Polyak after the update.
-        for j in 0..5i64 {
-            let (t_before, t_after, online) = (
+            // Line 13: Polyak after the update.
+            let (t_before, t_after) = (
                 target_before.member_flat(j),
                 s.target_critics.member_flat(j),
-                s.critics.member_flat(j),
             );
             for q in 0..t_before.len() {
-                assert!((t_after[q] - (0.995 * t_before[q] + 0.005 * online[q])).abs() < 1e-6);
+                assert!((t_after[q] - (0.995 * t_before[q] + 0.005 * after[q])).abs() < 1e-6);
             }
         }
+    }
+
+    #[test]
+    fn one_actor_is_redq() {
+        check_critic_update(1, Sharing::PerUpdate, 2);
+    }
+
+    #[test]
+    fn one_actor_with_the_full_subset_is_maxmin() {
+        check_critic_update(1, Sharing::PerUpdate, 5);
+    }
+
+    #[test]
+    fn per_critic_sharing_gives_each_critic_its_own_batch_and_subset() {
+        check_critic_update(1, Sharing::PerCritic, 2);
+    }
+
+    #[test]
+    fn several_actors_take_the_max_over_actors_of_the_subset_min() {
+        check_critic_update(3, Sharing::PerUpdate, 2);
+        check_critic_update(2, Sharing::PerCritic, 3);
     }
 
     /// Both sharing modes and every formation run, and per-critic draws N batches per update.
