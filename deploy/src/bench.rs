@@ -3,7 +3,7 @@
 use anyhow::Result;
 use clap::{Args, Subcommand};
 use rand::{Rng, SeedableRng};
-use selkd_learner::config::{AlgoConfig, Sharing};
+use selkd_learner::config::{AlgoConfig, Precision, Sharing};
 use std::time::Instant;
 
 #[derive(Subcommand, Debug)]
@@ -49,6 +49,9 @@ pub struct LearnerBench {
     /// Timed rounds (after one warm-up round).
     #[arg(long, default_value_t = 10)]
     rounds: usize,
+    /// Element type of the critics' matmuls: fp32 or bf16.
+    #[arg(long, default_value = "fp32")]
+    critic_matmul: String,
     /// libtorch threads (0 = its default).
     #[arg(long, default_value_t = 0)]
     threads: usize,
@@ -73,7 +76,13 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             if b.threads > 0 {
                 tch::set_num_threads(b.threads as i32);
             }
+            let critic_matmul = match b.critic_matmul.as_str() {
+                "fp32" => Precision::Fp32,
+                "bf16" => Precision::Bf16,
+                other => anyhow::bail!("--critic-matmul {other}: use fp32 or bf16"),
+            };
             let cfg = AlgoConfig {
+                critic_matmul,
                 actors: b.k,
                 critics: b.n,
                 subset: b.m,
@@ -86,8 +95,8 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             let device = selkd_learner::service::parse_device(&b.device)?;
             let r = selkd_learner::bench::learner(&cfg, b.obs, b.act, device, b.rounds);
             println!(
-                "K={} N={} M={} G={} batch={} obs={} act={} hidden={} {} on {} ({} threads): {:.1} rounds/s",
-                b.k, b.n, b.m, b.g, b.batch, b.obs, b.act, b.hidden, b.sharing, b.device, tch::get_num_threads(), r.rounds_per_sec
+                "K={} N={} M={} G={} batch={} obs={} act={} hidden={} {} {} on {} ({} threads): {:.1} rounds/s",
+                b.k, b.n, b.m, b.g, b.batch, b.obs, b.act, b.hidden, b.sharing, b.critic_matmul, b.device, tch::get_num_threads(), r.rounds_per_sec
             );
             println!("{:.2} updates/s", r.critic_updates_per_sec);
         }

@@ -1,5 +1,9 @@
-//! Times the pieces of one critic-ensemble update at the benchmark's sizes (a profiling aid).
-use selkd_learner::ensemble::Ensemble;
+//! Times one critic-ensemble update against its GEMM-bound core at the benchmark's sizes
+//! (a profiling aid: the gap is the overhead worth attacking).
+use rand::{Rng, SeedableRng};
+use selkd_learner::config::AlgoConfig;
+use selkd_learner::replay::ReplayBuffer;
+use selkd_learner::selkd::Selkd;
 use std::time::Instant;
 use tch::{Device, Kind, Tensor};
 fn time(name: &str, n: usize, mut f: impl FnMut()) {
@@ -13,34 +17,57 @@ fn time(name: &str, n: usize, mut f: impl FnMut()) {
         t0.elapsed().as_secs_f64() * 1000.0 / n as f64
     );
 }
-fn forward(e: &Ensemble, x: &Tensor, kind: Kind) -> Tensor {
-    let last = e.layers.len() - 1;
-    let mut h = x.to_kind(kind);
-    for (l, layer) in e.layers.iter().enumerate() {
-        h = layer
-            .bias
-            .to_kind(kind)
-            .baddbmm(&h, &layer.weight.to_kind(kind), 1.0, 1.0);
-        if l < last {
-            h = h.relu();
-        }
-    }
-    h.to_kind(Kind::Float)
-}
 fn main() {
     tch::set_num_threads(2);
     selkd_learner::keep_freed_memory();
-    let mut rng = <rand_pcg::Pcg64 as rand::SeedableRng>::seed_from_u64(0);
-    let critics = Ensemble::new(10, &[35, 256, 256, 1], Device::Cpu, &mut rng);
-    let x = Tensor::randn([1, 256, 35], (Kind::Float, Device::Cpu));
-    let y = Tensor::randn([1, 256, 1], (Kind::Float, Device::Cpu));
-    for kind in [Kind::Float, Kind::BFloat16] {
-        time(&format!("{kind:?} forward+backward"), 100, || {
-            let q = forward(&critics, &x.expand([10, 256, 35], false), kind);
-            let loss = ((&q - &y).square() * 0.5)
-                .mean_dim(1, false, Kind::Float)
-                .sum(Kind::Float);
-            loss.backward();
+    let cfg = AlgoConfig::default();
+    let (obs, act) = (27, 8);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
+    let mut replay = ReplayBuffer::new(100_000, obs, act, Device::Cpu);
+    for _ in 0..100_000 {
+        let mut v = |n: usize| -> Vec<f32> { (0..n).map(|_| rng.gen_range(-1.0..1.0)).collect() };
+        let (s, a, s2) = (v(obs), v(act), v(obs));
+        replay.push(&s, &a, 0.5, &s2, false);
+    }
+    let mut s = Selkd::new(
+        &AlgoConfig {
+            actors: 1,
+            ..cfg.clone()
+        },
+        obs,
+        act,
+        Device::Cpu,
+        0,
+    );
+    for round in 0..3 {
+        time(&format!("[{round}] full critic update"), 40, || {
+            s.update_critics(&mut replay);
+        });
+        let x = Tensor::randn(
+            [1, 256, obs as i64 + act as i64],
+            (Kind::Float, Device::Cpu),
+        );
+        let y = Tensor::randn([1, 256], (Kind::Float, Device::Cpu));
+        time(
+            &format!("[{round}] critic forward+backward only"),
+            40,
+            || {
+                let q = s
+                    .critics
+                    .forward(&x.expand([10, 256, -1], false))
+                    .squeeze_dim(-1);
+                let loss = ((&q - &y).square() * 0.5)
+                    .mean_dim(1, false, Kind::Float)
+                    .sum(Kind::Float);
+                loss.backward();
+            },
+        );
+        time(&format!("[{round}] adam"), 40, || {
+            s.critic_opt.step(&s.critics.params())
+        });
+        let mut b = replay.sample(1, 256, &mut rng);
+        time(&format!("[{round}] sample"), 40, || {
+            b = replay.sample(1, 256, &mut rng)
         });
     }
 }

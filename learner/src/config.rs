@@ -80,6 +80,16 @@ pub struct AlgoConfig {
     pub alpha_lr: f64,
     /// Target entropy for the automatic temperature; default −|A|.
     pub target_entropy: Option<f64>,
+    /// Element type of the critics' matmuls: `fp32` (exact) or `bf16` (about twice the matmul
+    /// throughput on CPUs with AVX-512 BF16 and on GPUs; fp32 weights, optimiser and accumulation).
+    pub critic_matmul: Precision,
+}
+
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum Precision {
+    Fp32,
+    Bf16,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -150,6 +160,7 @@ impl Default for AlgoConfig {
             fixed_alpha: None,
             alpha_lr: 3e-4,
             target_entropy: None,
+            critic_matmul: Precision::Fp32,
         }
     }
 }

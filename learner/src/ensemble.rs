@@ -14,6 +14,9 @@ pub struct StackedLinear {
 /// E MLPs with ReLU between layers and a linear output.
 pub struct Ensemble {
     pub layers: Vec<StackedLinear>,
+    /// Element type the matmuls run in: `Float`, or `BFloat16` (bf16 inputs, fp32 accumulation
+    /// and fp32 master weights) where the CPU or GPU has fast bf16 units.
+    pub matmul: Kind,
 }
 
 impl Ensemble {
@@ -36,7 +39,10 @@ impl Ensemble {
                 }
             })
             .collect();
-        Self { layers }
+        Self {
+            layers,
+            matmul: Kind::Float,
+        }
     }
 
     pub fn members(&self) -> i64 {
@@ -48,7 +54,14 @@ impl Ensemble {
         let last = self.layers.len() - 1;
         let mut h = x.shallow_clone();
         for (l, layer) in self.layers.iter().enumerate() {
-            h = layer.bias.baddbmm(&h, &layer.weight, 1.0, 1.0);
+            h = if self.matmul == Kind::Float {
+                layer.bias.baddbmm(&h, &layer.weight, 1.0, 1.0)
+            } else {
+                h.to_kind(self.matmul)
+                    .bmm(&layer.weight.to_kind(self.matmul))
+                    .to_kind(Kind::Float)
+                    + &layer.bias
+            };
             if l < last {
                 h = h.relu();
             }
@@ -86,6 +99,7 @@ impl Ensemble {
                     bias: f(&l.bias),
                 })
                 .collect(),
+            matmul: self.matmul,
         }
     }
 
@@ -177,6 +191,22 @@ mod tests {
                 assert!((row[2 + d].clamp(-20.0, 2.0) - ls[d]).abs() < 1e-5);
             }
         }
+    }
+
+    #[test]
+    fn bf16_matmuls_stay_close_to_fp32_and_train_fp32_weights() {
+        let mut rng = Pcg64::seed_from_u64(5);
+        let mut ens = Ensemble::new(4, &[12, 64, 64, 1], Device::Cpu, &mut rng);
+        let x = Tensor::randn([4, 32, 12], (Kind::Float, Device::Cpu));
+        let exact = ens.forward(&x);
+        ens.matmul = Kind::BFloat16;
+        let fast = ens.forward(&x);
+        assert_eq!(fast.kind(), Kind::Float);
+        let rel =
+            ((&fast - &exact).abs().max().double_value(&[])) / exact.abs().max().double_value(&[]);
+        assert!(rel < 2e-2, "bf16 forward strays {rel} from fp32");
+        fast.sum(Kind::Float).backward();
+        assert_eq!(ens.layers[0].weight.grad().kind(), Kind::Float);
     }
 
     #[test]

@@ -74,7 +74,10 @@ impl Selkd {
         let mut rng = Pcg64::seed_from_u64(seed);
         let dims = |input: usize, out: usize| [vec![input], cfg.hidden.clone(), vec![out]].concat();
         let actors = Ensemble::new(cfg.actors, &dims(obs_dim, 2 * act_dim), device, &mut rng);
-        let critics = Ensemble::new(cfg.critics, &dims(obs_dim + act_dim, 1), device, &mut rng);
+        let mut critics = Ensemble::new(cfg.critics, &dims(obs_dim + act_dim, 1), device, &mut rng);
+        if cfg.critic_matmul == crate::config::Precision::Bf16 {
+            critics.matmul = Kind::BFloat16;
+        }
         let target_critics = critics.copy();
         let log_alpha =
             Tensor::zeros([cfg.actors as i64], (Kind::Float, device)).set_requires_grad(true);
