@@ -75,6 +75,10 @@ pub struct AlgoConfig {
     pub sharing: Sharing,
     /// λ_KD, weight of the distillation term.
     pub kd_weight: f64,
+    /// Ablation "SELKD w/o RL": only actor 0 optimises the RL objective; the others only distil.
+    pub without_rl: bool,
+    /// `target = "max-aqe"`: how many of the highest subset values AQE drops.
+    pub aqe_drop: usize,
     /// Fixed temperature; when absent, each actor's α is tuned automatically.
     pub fixed_alpha: Option<f64>,
     pub alpha_lr: f64,
@@ -157,6 +161,8 @@ impl Default for AlgoConfig {
             target: Formation::MaxMin,
             sharing: Sharing::PerUpdate,
             kd_weight: 1.0,
+            without_rl: false,
+            aqe_drop: 1,
             fixed_alpha: None,
             alpha_lr: 3e-4,
             target_entropy: None,
@@ -253,6 +259,9 @@ impl Config {
         }
         if !(0.0..1.0).contains(&a.polyak) {
             return bad(format!("algo.polyak (ρ) = {} must be in [0, 1)", a.polyak));
+        }
+        if a.target == Formation::MaxAqe && a.aqe_drop >= a.subset {
+            return bad(format!("algo.aqe_drop ({}) must be below algo.subset (M = {}) so AQE keeps at least one value", a.aqe_drop, a.subset));
         }
         if !(a.kd_weight >= 0.0 && a.kd_weight.is_finite()) {
             return bad(format!("algo.kd_weight = {} must be ≥ 0", a.kd_weight));
@@ -386,14 +395,33 @@ mod tests {
         assert!(err("", &["run.env=walker"]).contains("pendulum"));
         assert!(err("", &["algo.batch_size=-3"]).contains("batch_size"));
         assert!(err("[algo]\ncritcs = 3\n", &[]).contains("critcs"));
-        assert!(err("", &["algo.target=\"max-mean\""]).contains("max-min"));
+        assert!(err("", &["algo.target=\"max-median\""]).contains("max-min"));
         assert!(err("", &["nonsense"]).contains("key=value"));
+        assert!(err("", &["algo.target=\"max-aqe\"", "algo.aqe_drop=2"]).contains("algo.aqe_drop"));
         for e in [
             err("", &["algo.subset=11"]),
             err("[algo]\ncritcs = 3\n", &[]),
         ] {
             assert!(!e.contains('\n'), "one line: {e}");
         }
+    }
+
+    #[test]
+    fn every_shipped_config_is_valid() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+        let mut seen = 0;
+        for dir in [root.clone(), root.join("baselines")] {
+            for entry in std::fs::read_dir(dir).unwrap() {
+                let path = entry.unwrap().path();
+                if path.extension().is_some_and(|e| e == "toml") {
+                    let text = std::fs::read_to_string(&path).unwrap();
+                    Config::from_toml_with_overrides(&text, &[])
+                        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                    seen += 1;
+                }
+            }
+        }
+        assert!(seen >= 10, "found {seen} configs");
     }
 
     #[test]

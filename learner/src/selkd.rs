@@ -22,8 +22,8 @@ use crate::ensemble::Ensemble;
 use crate::optim::Adam;
 use crate::replay::{Batch, ReplayBuffer};
 use crate::squashed_gaussian::{sample, split_head};
-use crate::targets::critic_target;
-use rand::SeedableRng;
+use crate::targets::{critic_target, Formation, InnerOptions};
+use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 use rand_pcg::Pcg64;
 use tch::{Device, Kind, Tensor};
@@ -203,6 +203,18 @@ impl Selkd {
             .forward(&x2)
             .view([g, m, k, b]);
         let logp2 = logp2.view([k, g, b]).permute([1, 0, 2]);
+        // REM's mixture: uniform weights, normalised, fresh for every group and update.
+        let rem_weights = (self.cfg.target == Formation::MaxRem).then(|| {
+            let w: Vec<f32> = (0..g * m)
+                .map(|_| self.rng.gen_range(0.0f32..1.0))
+                .collect();
+            let w = Tensor::from_slice(&w).view([g, m]).to_device(self.device);
+            &w / w.sum_dim_intlist(1, true, Kind::Float)
+        });
+        let opts = InnerOptions {
+            rem_weights: rem_weights.as_ref(),
+            aqe_drop: self.cfg.aqe_drop,
+        };
         critic_target(
             reward,
             terminated,
@@ -211,6 +223,7 @@ impl Selkd {
             &self.alpha(),
             self.cfg.gamma,
             self.cfg.target,
+            &opts,
         )
     }
 
@@ -249,7 +262,13 @@ impl Selkd {
         let kd = Tensor::from_slice(&kd).to_device(self.device).view([k, 1]);
         // Line 19 (as a loss to minimise).
         let alpha = self.alpha().view([k, 1]);
-        let per_actor = (&alpha * &logp - &q + &kd * &kl).mean_dim(1, false, Kind::Float);
+        // SELKD w/o RL (ablation): only actor 0 keeps the RL objective, the others only distil.
+        let mut rl = vec![1.0f32; self.cfg.actors];
+        if self.cfg.without_rl {
+            rl[1..].iter_mut().for_each(|v| *v = 0.0);
+        }
+        let rl = Tensor::from_slice(&rl).to_device(self.device).view([k, 1]);
+        let per_actor = (&rl * (&alpha * &logp - &q) + &kd * &kl).mean_dim(1, false, Kind::Float);
         per_actor.sum(Kind::Float).backward();
         self.actor_opt.step(&self.actors.params());
         // Temperature: minimise −log α_i · (log π_i + target entropy), detached from the actor.
@@ -542,6 +561,38 @@ mod tests {
                 stats.kl_to_best[i]
             );
         }
+    }
+
+    /// The ensemble baselines' targets (Average-DQN, REM, AQE; K = 1, M = N) train and stay finite.
+    #[test]
+    fn baseline_targets_train() {
+        for target in [Formation::MaxMean, Formation::MaxRem, Formation::MaxAqe] {
+            let cfg = AlgoConfig {
+                target,
+                ..small(1, 4, 4)
+            };
+            let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 1);
+            let mut rb = filled_replay(3, 2, 100);
+            let stats = s.train_round(&mut rb, 0);
+            assert!(stats.critic_loss.is_finite(), "{target:?}");
+        }
+    }
+
+    /// Ablation "w/o RL": with λ_KD = 0 too, only actor 0 has a loss, so only actor 0 moves.
+    #[test]
+    fn without_rl_only_actor_zero_optimises_the_rl_objective() {
+        let cfg = AlgoConfig {
+            without_rl: true,
+            kd_weight: 0.0,
+            ..small(3, 2, 2)
+        };
+        let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 6);
+        let mut rb = filled_replay(3, 2, 100);
+        let before: Vec<Vec<f32>> = (0..3).map(|i| s.actor_weights(i)).collect();
+        s.update_actors(&mut rb, 1, &mut RoundStats::default());
+        assert_ne!(s.actor_weights(0), before[0]);
+        assert_eq!(s.actor_weights(1), before[1]);
+        assert_eq!(s.actor_weights(2), before[2]);
     }
 
     /// A checkpoint restores networks, optimiser moments, temperatures and the RNG exactly: the

@@ -2,6 +2,9 @@
 //!
 //! For every actor i: `v_i = inner_{m∈𝓜} Q̄_m(s', ã'_i) − α_i log π_i(ã'_i|s')`, then
 //! `y = r + γ (1 − terminated) · outer_i v_i`. The default formation is inner = min, outer = max.
+//! The ensemble baselines of the paper's comparison are inner reductions too (run them with K = 1
+//! and M = N): Average-DQN's mean, REM's random convex mixture, AQE's mean after dropping the
+//! highest values.
 
 use serde::{Deserialize, Serialize};
 use tch::Tensor;
@@ -15,14 +18,45 @@ pub enum Formation {
     MinMin,
     MinMax,
     MaxMax,
+    /// Average-DQN: the mean over the subset.
+    MaxMean,
+    /// REM: a random convex mixture over the subset, new weights for every group and update.
+    MaxRem,
+    /// AQE: the mean of the subset's values after dropping the `aqe_drop` highest.
+    MaxAqe,
+}
+
+/// What the randomised and trimmed inner reductions need besides the values.
+pub struct InnerOptions<'a> {
+    /// REM's mixture weights, `[G, M]`, each row non-negative and summing to 1.
+    pub rem_weights: Option<&'a Tensor>,
+    /// AQE: how many of the highest values to drop (fewer than M).
+    pub aqe_drop: usize,
 }
 
 impl Formation {
     fn outer_is_max(self) -> bool {
-        matches!(self, Formation::MaxMin | Formation::MaxMax)
+        !matches!(self, Formation::MinMin | Formation::MinMax)
     }
-    fn inner_is_min(self) -> bool {
-        matches!(self, Formation::MaxMin | Formation::MinMin)
+}
+
+/// The inner reduction of `q_next` `[G, M, K, B]` over the subset (dim 1), giving `[G, K, B]`.
+fn inner(q_next: &Tensor, formation: Formation, opts: &InnerOptions) -> Tensor {
+    match formation {
+        Formation::MaxMin | Formation::MinMin => q_next.amin(1, false),
+        Formation::MinMax | Formation::MaxMax => q_next.amax(1, false),
+        Formation::MaxMean => q_next.mean_dim(1, false, q_next.kind()),
+        Formation::MaxRem => {
+            let w = opts.rem_weights.expect("REM needs mixture weights");
+            let (g, m) = (w.size()[0], w.size()[1]);
+            (q_next * w.view([g, m, 1, 1])).sum_dim_intlist(1, false, q_next.kind())
+        }
+        Formation::MaxAqe => {
+            let m = q_next.size()[1];
+            let keep = m - opts.aqe_drop as i64;
+            let (sorted, _) = q_next.sort(1, false);
+            sorted.narrow(1, 0, keep).mean_dim(1, false, q_next.kind())
+        }
     }
 }
 
@@ -40,12 +74,9 @@ pub fn critic_target(
     alpha: &Tensor,
     gamma: f64,
     formation: Formation,
+    opts: &InnerOptions,
 ) -> Tensor {
-    let inner = if formation.inner_is_min() {
-        q_next.amin(1, false)
-    } else {
-        q_next.amax(1, false)
-    };
+    let inner = inner(q_next, formation, opts);
     let soft_value = inner - alpha.view([1, -1, 1]) * logp_next;
     let outer = if formation.outer_is_max() {
         soft_value.amax(1, false)
@@ -64,7 +95,9 @@ mod tests {
         Tensor::from_slice(v).to_kind(Kind::Double).view(shape)
     }
 
-    /// A plain loop over the definition for one (G=1) group.
+    const REM: [f64; 3] = [0.2, 0.5, 0.3];
+
+    /// A plain loop over the definition for one (G=1) group (REM weights `REM`, AQE drops 1).
     fn reference(
         r: &[f64],
         d: &[f64],
@@ -79,30 +112,28 @@ mod tests {
             .map(|row| {
                 let mut best: Option<f64> = None;
                 for i in 0..k {
-                    let mut inner: Option<f64> = None;
-                    for j in 0..m {
-                        let v = q[j][i][row];
-                        inner = Some(match inner {
-                            None => v,
-                            Some(x) => {
-                                if f.inner_is_min() {
-                                    x.min(v)
-                                } else {
-                                    x.max(v)
-                                }
-                            }
-                        });
-                    }
-                    let v = inner.unwrap() - alpha[i] * lp[i][row];
+                    let vals: Vec<f64> = (0..m).map(|j| q[j][i][row]).collect();
+                    let inner = match f {
+                        Formation::MaxMin | Formation::MinMin => {
+                            vals.iter().copied().fold(f64::INFINITY, f64::min)
+                        }
+                        Formation::MinMax | Formation::MaxMax => {
+                            vals.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+                        }
+                        Formation::MaxMean => vals.iter().sum::<f64>() / m as f64,
+                        Formation::MaxRem => vals.iter().zip(REM).map(|(v, w)| v * w).sum(),
+                        Formation::MaxAqe => {
+                            let mut v = vals.clone();
+                            v.sort_by(|a, b| a.partial_cmp(b).unwrap());
+                            v[..m - 1].iter().sum::<f64>() / (m - 1) as f64
+                        }
+                    };
+                    let v = inner - alpha[i] * lp[i][row];
+                    let outer_max = !matches!(f, Formation::MinMin | Formation::MinMax);
                     best = Some(match best {
                         None => v,
-                        Some(x) => {
-                            if f.outer_is_max() {
-                                x.max(v)
-                            } else {
-                                x.min(v)
-                            }
-                        }
+                        Some(x) if outer_max => x.max(v),
+                        Some(x) => x.min(v),
                     });
                 }
                 r[row] + gamma * (1.0 - d[row]) * best.unwrap()
@@ -122,12 +153,13 @@ mod tests {
         let (r, d, alpha) = ([1.0, -0.5, 0.0, 2.0], [0.0, 1.0, 0.0, 0.0], [0.2, 0.7]);
         let qf: Vec<f64> = q.iter().flatten().flatten().copied().collect();
         let lpf: Vec<f64> = lp.iter().flatten().copied().collect();
-        for f in [
-            Formation::MaxMin,
-            Formation::MinMin,
-            Formation::MinMax,
-            Formation::MaxMax,
-        ] {
+        let rem = t(&REM, &[1, 3]);
+        let opts = InnerOptions {
+            rem_weights: Some(&rem),
+            aqe_drop: 1,
+        };
+        use Formation::*;
+        for f in [MaxMin, MinMin, MinMax, MaxMax, MaxMean, MaxRem, MaxAqe] {
             let y = critic_target(
                 &t(&r, &[1, 4]),
                 &t(&d, &[1, 4]),
@@ -136,6 +168,7 @@ mod tests {
                 &t(&alpha, &[2]),
                 0.99,
                 f,
+                &opts,
             );
             let want = reference(&r, &d, &q, &lp, &alpha, 0.99, f);
             for row in 0..4 {
@@ -164,6 +197,10 @@ mod tests {
                 &t(&[alpha], &[1]),
                 0.99,
                 f,
+                &InnerOptions {
+                    rem_weights: None,
+                    aqe_drop: 0,
+                },
             );
             for b in 0..3 {
                 // With M = N = 2 this is SAC's clipped double-Q target.
