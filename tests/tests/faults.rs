@@ -225,3 +225,46 @@ fn a_worker_that_does_not_fit_the_run_is_refused_with_a_clear_error() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn ctrl_c_stops_everything_cleanly_with_a_checkpoint() {
+    let dir = temp_dir("ctrlc");
+    let mut child = spawn(train(
+        &dir,
+        &small_run(&["algo.actors=2", "run.total_env_steps=1000000"]),
+    ));
+    let mut stderr = BufReader::new(child.stderr.take().unwrap());
+    let mut first = String::new();
+    stderr.read_line(&mut first).unwrap();
+    let run_id = first
+        .split_whitespace()
+        .nth(2)
+        .unwrap()
+        .trim_end_matches(':')
+        .to_string();
+    let t0 = Instant::now();
+    while env_steps_so_far(&dir) < 1000 {
+        assert!(
+            t0.elapsed() < Duration::from_secs(120),
+            "no progress: {}",
+            log(&dir, "learner.log")
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stderr, &mut rest).unwrap();
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130), "{rest}");
+    assert!(rest.contains("stopped; checkpoint at"), "{rest}");
+    let state: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("checkpoints/final/state.json")).unwrap(),
+    )
+    .unwrap();
+    assert!(state["inserted"].as_u64().unwrap() >= 1000);
+    assert!(
+        worker_pids(&run_id, 0).is_empty() && worker_pids(&run_id, 1).is_empty(),
+        "workers left running"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
