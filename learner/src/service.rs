@@ -48,9 +48,12 @@ pub fn parse_device(s: &str) -> Result<Device> {
     Ok(device)
 }
 
+/// A received transition on its way into the replay buffer. `row` is `None` for one that was
+/// dropped for a non-finite value: it still counts as the worker's env step (so lockstep rounds,
+/// budgets and epochs carry on), but nothing is stored.
 struct Pending {
     header: TransitionHeader,
-    row: Vec<f32>,
+    row: Option<Vec<f32>>,
 }
 
 pub struct Learner {
@@ -411,7 +414,8 @@ impl Learner {
             return;
         }
         self.received[w] += 1;
-        if !row.iter().all(|v| v.is_finite()) {
+        let finite = row.iter().all(|v| v.is_finite());
+        if !finite {
             self.dropped_nonfinite += 1;
             if self.dropped_nonfinite == 1 || self.dropped_nonfinite.is_power_of_two() {
                 tracing::warn!(
@@ -420,7 +424,6 @@ impl Learner {
                     "dropped a transition with a NaN or infinite value (never stored)"
                 );
             }
-            return;
         }
         if h.policy_version > 0 {
             let lag = self.weights_version.saturating_sub(h.policy_version);
@@ -430,7 +433,7 @@ impl Learner {
         }
         let p = Pending {
             header: h,
-            row: row.to_vec(),
+            row: finite.then(|| row.to_vec()),
         };
         match self.cfg.run.mode {
             Mode::Sync => self.pending[w].push_back(p),
@@ -439,8 +442,10 @@ impl Learner {
     }
 
     fn store(&mut self, p: Pending) {
-        let (s, a, r, s2, terminated, _truncated) = self.row.split(&p.row);
-        self.replay.push(s, a, r, s2, terminated);
+        if let Some(row) = &p.row {
+            let (s, a, r, s2, terminated, _truncated) = self.row.split(row);
+            self.replay.push(s, a, r, s2, terminated);
+        }
         self.inserted += 1;
         if p.header.episode_return.is_finite() {
             self.ranking
@@ -734,12 +739,25 @@ mod tests {
             l.on_transition(header(0), &good[..9]); // one value short
             l.on_transition(header(7), &good); // no such worker
             assert_eq!((l.dropped_nonfinite, l.dropped_malformed), (2, 2));
-            assert_eq!(
-                l.replay.len() + l.pending.iter().map(|q| q.len()).sum::<usize>(),
-                0
-            );
+            // The dropped steps still count as the workers' steps (a lockstep round must not wait
+            // for them forever), but nothing of them is stored.
             l.on_transition(header(1), &good);
-            assert_eq!(l.replay.len() + l.pending[1].len(), 1);
+            if mode == Mode::Sync {
+                l.advance_sync().unwrap(); // one round: actor 0's NaN step and actor 1's Inf step
+                assert_eq!(
+                    l.pending[1].len(),
+                    1,
+                    "actor 1's good step waits for actor 0's next"
+                );
+            }
+            assert_eq!(l.inserted, if mode == Mode::Sync { 2 } else { 3 });
+            l.replay.flush();
+            let stored = if mode == Mode::Sync { 0 } else { 1 };
+            assert_eq!(
+                l.replay.len(),
+                stored,
+                "only the finite transition is stored"
+            );
             let _ = std::fs::remove_dir_all(dir);
         }
     }
