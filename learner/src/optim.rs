@@ -44,12 +44,15 @@ impl Adam {
                 if !g.defined() {
                     continue;
                 }
+                // torch's p −= lr/b1 · m / (√v/√b2 + ε), rewritten as
+                // p −= (lr·√b2/b1) · m / (√v + ε·√b2) to need fewer temporaries.
                 let _ = m.lerp_(&g, 1.0 - self.beta1);
-                let _ = v
-                    .g_mul_scalar_(self.beta2)
-                    .addcmul_(&g, &(&g * (1.0 - self.beta2)));
-                let denom = (v.sqrt() / bias2.sqrt()) + self.eps;
-                let _ = p.g_sub_(&(&*m / denom * (self.lr / bias1)));
+                let _ = v.lerp_(&g.square(), 1.0 - self.beta2);
+                let mut denom = v.sqrt();
+                let _ = denom.g_add_scalar_(self.eps * bias2.sqrt());
+                let mut update = &*m / &denom;
+                let _ = update.g_mul_scalar_(self.lr * bias2.sqrt() / bias1);
+                let _ = p.g_sub_(&update);
                 p.zero_grad();
             }
         });
