@@ -253,7 +253,11 @@ fn run(args: &Args) -> Result<()> {
                     .map(|_| action_rng.gen_range(-1.0f32..=1.0))
                     .collect()
             } else {
-                policy.sample_action(&obs, &mut action_rng)
+                if control.exploration_noise > 0.0 {
+                    policy.noisy_mean_action(&obs, control.exploration_noise, &mut action_rng)
+                } else {
+                    policy.sample_action(&obs, &mut action_rng)
+                }
             };
             let step = env.step(&action);
             episode_return += step.reward;

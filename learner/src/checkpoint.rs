@@ -39,6 +39,9 @@ fn tensors<'a>(s: &'a Selkd) -> Vec<(String, &'a Tensor)> {
     let mut out = s.actors.named_params("actors");
     out.extend(s.critics.named_params("critics"));
     out.extend(s.target_critics.named_params("target_critics"));
+    if let Some(t) = &s.target_actors {
+        out.extend(t.named_params("target_actors"));
+    }
     out.push(("log_alpha".into(), &s.log_alpha));
     for (name, opt) in [
         ("actor", &s.actor_opt),

@@ -51,9 +51,26 @@ pub enum Sharing {
     PerCritic,
 }
 
+/// The off-policy algorithm SELKD is built on (paper section 7.1).
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum Backbone {
+    /// Stochastic tanh-Gaussian actors with entropy bonus; KD is the KL to the best actor.
+    Sac,
+    /// Deterministic actors with target actors and target policy smoothing; KD is the squared
+    /// action distance to the best actor; no temperature.
+    Td3,
+}
+
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct AlgoConfig {
+    pub backbone: Backbone,
+    /// TD3: std of the Gaussian exploration noise added to the workers' actions.
+    pub exploration_noise: f64,
+    /// TD3: std of the target policy smoothing noise, and where it is clipped.
+    pub target_noise: f64,
+    pub target_noise_clip: f64,
     /// K actors.
     pub actors: usize,
     /// N critics.
@@ -147,6 +164,10 @@ impl Default for RunConfig {
 impl Default for AlgoConfig {
     fn default() -> Self {
         Self {
+            backbone: Backbone::Sac,
+            exploration_noise: 0.1,
+            target_noise: 0.2,
+            target_noise_clip: 0.5,
             actors: 5,
             critics: 10,
             subset: 2,
@@ -262,6 +283,15 @@ impl Config {
         }
         if a.target == Formation::MaxAqe && a.aqe_drop >= a.subset {
             return bad(format!("algo.aqe_drop ({}) must be below algo.subset (M = {}) so AQE keeps at least one value", a.aqe_drop, a.subset));
+        }
+        for (key, v) in [
+            ("exploration_noise", a.exploration_noise),
+            ("target_noise", a.target_noise),
+            ("target_noise_clip", a.target_noise_clip),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return bad(format!("algo.{key} = {v} must be ≥ 0"));
+            }
         }
         if !(a.kd_weight >= 0.0 && a.kd_weight.is_finite()) {
             return bad(format!("algo.kd_weight = {} must be ≥ 0", a.kd_weight));

@@ -16,7 +16,7 @@
 //!         and tune α_i toward the target entropy.
 //! ```
 
-use crate::config::{AlgoConfig, Sharing};
+use crate::config::{AlgoConfig, Backbone, Sharing};
 use crate::distillation::gaussian_kl;
 use crate::ensemble::Ensemble;
 use crate::optim::Adam;
@@ -39,6 +39,8 @@ pub struct Selkd {
     /// N critics, stacked: `obs + act → hidden… → 1`.
     pub critics: Ensemble,
     pub target_critics: Ensemble,
+    /// TD3 backbone only: Polyak-averaged copies of the actors, for the target.
+    pub target_actors: Option<Ensemble>,
     /// `log α_i`, shape `[K]`.
     pub log_alpha: Tensor,
     pub actor_opt: Adam,
@@ -79,6 +81,7 @@ impl Selkd {
             critics.matmul = Kind::BFloat16;
         }
         let target_critics = critics.copy();
+        let target_actors = (cfg.backbone == Backbone::Td3).then(|| actors.copy());
         let log_alpha =
             Tensor::zeros([cfg.actors as i64], (Kind::Float, device)).set_requires_grad(true);
         Self {
@@ -92,6 +95,7 @@ impl Selkd {
             actors,
             critics,
             target_critics,
+            target_actors,
             log_alpha,
             rng,
             critic_updates: 0,
@@ -185,9 +189,23 @@ impl Selkd {
         let s2 = next_obs
             .reshape([1, g * b, -1])
             .expand([k, g * b, -1], false);
-        let (mu, log_std) = split_head(&self.actors.forward(&s2));
         let eps = self.noise(&[k, g * b, self.act_dim as i64]);
-        let (a2, logp2) = sample(&mu, &log_std, &eps);
+        let (a2, logp2) = match &self.target_actors {
+            // TD3: the target actors' action with clipped smoothing noise; no entropy term.
+            Some(target_actors) => {
+                let (mu, _) = split_head(&target_actors.forward(&s2));
+                let clip = self.cfg.target_noise_clip;
+                let smoothing = (eps * self.cfg.target_noise).clamp(-clip, clip);
+                (
+                    (mu.tanh() + smoothing).clamp(-1.0, 1.0),
+                    Tensor::zeros([k, g * b], (Kind::Float, self.device)),
+                )
+            }
+            None => {
+                let (mu, log_std) = split_head(&self.actors.forward(&s2));
+                sample(&mu, &log_std, &eps)
+            }
+        };
         // Rows of group gi: (actor, row) pairs; each goes through that group's M target critics.
         let x2 = Tensor::cat(&[&s2, &a2], -1)
             .view([k, g, b, -1])
@@ -237,8 +255,13 @@ impl Selkd {
         let batch = replay.sample(self.cfg.actors, self.cfg.batch_size, &mut self.rng); // line 17
         let s = &batch.obs;
         let (mu, log_std) = split_head(&self.actors.forward(s));
-        let eps = self.noise(&[k, b, self.act_dim as i64]);
-        let (a, logp) = sample(&mu, &log_std, &eps);
+        let td3 = self.cfg.backbone == Backbone::Td3;
+        let (a, logp) = if td3 {
+            (mu.tanh(), Tensor::zeros([k, b], (Kind::Float, self.device)))
+        } else {
+            let eps = self.noise(&[k, b, self.act_dim as i64]);
+            sample(&mu, &log_std, &eps)
+        };
         // (1/N) Σ_j Q_j(s, ã_i(s)): the critics are fixed here, only the actor moves.
         let x = Tensor::cat(&[s, &a], -1)
             .reshape([1, k * b, -1])
@@ -256,12 +279,23 @@ impl Selkd {
             .forward(&s.reshape([1, k * b, -1]))
             .view([k, b, -1]);
         let (mu_best, log_std_best) = split_head(&best_head);
-        let kl = gaussian_kl(&mu, &log_std, &mu_best, &log_std_best);
+        // SAC: KL of the two policies; TD3: squared distance of the two deterministic actions.
+        let kl = if td3 {
+            (&a - mu_best.tanh())
+                .square()
+                .sum_dim_intlist(-1, false, Kind::Float)
+        } else {
+            gaussian_kl(&mu, &log_std, &mu_best, &log_std_best)
+        };
         let mut kd = vec![self.cfg.kd_weight as f32; self.cfg.actors];
         kd[best] = 0.0;
         let kd = Tensor::from_slice(&kd).to_device(self.device).view([k, 1]);
         // Line 19 (as a loss to minimise).
-        let alpha = self.alpha().view([k, 1]);
+        let alpha = if td3 {
+            Tensor::zeros([k, 1], (Kind::Float, self.device))
+        } else {
+            self.alpha().view([k, 1])
+        };
         // SELKD w/o RL (ablation): only actor 0 keeps the RL objective, the others only distil.
         let mut rl = vec![1.0f32; self.cfg.actors];
         if self.cfg.without_rl {
@@ -272,7 +306,9 @@ impl Selkd {
         per_actor.sum(Kind::Float).backward();
         self.actor_opt.step(&self.actors.params());
         // Temperature: minimise −log α_i · (log π_i + target entropy), detached from the actor.
-        if self.cfg.fixed_alpha.is_none() {
+        if let Some(target_actors) = &mut self.target_actors {
+            target_actors.polyak_toward(&self.actors, self.cfg.polyak);
+        } else if self.cfg.fixed_alpha.is_none() {
             let target_entropy = self.cfg.target_entropy.unwrap_or(-(self.act_dim as f64));
             let alpha_loss = -(&self.log_alpha.view([k, 1]) * (logp.detach() + target_entropy))
                 .mean_dim(1, false, Kind::Float)
@@ -373,15 +409,23 @@ mod tests {
     /// literal form. The target and each
     /// critic's loss are recomputed here row by row with plain loops over separate networks. One
     /// update then moves each critic by Adam's first step (at most lr) and the targets by Polyak.
-    fn check_critic_update(k: usize, sharing: Sharing, m: usize) {
+    /// With the TD3 backbone the same check runs on `ã'_i = clip(tanh(μ̄_i(s')) + clip(0.2ε, ±0.5), ±1)`
+    /// from the target actors, without the entropy term.
+    fn check_critic_update(k: usize, sharing: Sharing, m: usize, backbone: Backbone) {
         let (obs, act, n) = (3, 2, 5);
         let cfg = AlgoConfig {
             sharing,
+            backbone,
             ..small(k, n, m)
         };
         let b_size = cfg.batch_size as i64;
         let mut s = Selkd::new(&cfg, obs, act, Device::Cpu, 3);
         let mut rb = filled_replay(obs, act, 200);
+        let td3 = backbone == Backbone::Td3;
+        if td3 {
+            // Move the actors once so that the target actors differ from them.
+            s.update_actors(&mut rb, 0, &mut RoundStats::default());
+        }
         let groups = if sharing == Sharing::PerCritic { n } else { 1 };
         let batch = rb.sample(groups, cfg.batch_size, &mut Pcg64::seed_from_u64(9));
         let subsets: Vec<Vec<i64>> = (0..groups)
@@ -402,12 +446,23 @@ mod tests {
                 // max over actors of the soft value under the subset's min.
                 let mut best = f64::NEG_INFINITY;
                 for i in 0..k {
-                    let head = mlp(&s.actors, i as i64, &s2);
+                    let policy = if td3 {
+                        s.target_actors.as_ref().unwrap()
+                    } else {
+                        &s.actors
+                    };
+                    let head = mlp(policy, i as i64, &s2);
                     let (mut a2, mut logp) = (Vec::new(), 0.0);
                     for d in 0..act {
                         let (mu, ls) = (head[d], head[act + d].clamp(-20.0, 2.0));
                         let e =
                             eps[((i * groups + g) * cfg.batch_size + b as usize) * act + d] as f64;
+                        if td3 {
+                            a2.push(
+                                (mu.tanh() + (0.2 * e).clamp(-0.5, 0.5)).clamp(-1.0, 1.0) as f32
+                            );
+                            continue;
+                        }
                         let u = mu + ls.exp() * e;
                         logp += -0.5 * e * e
                             - ls
@@ -420,7 +475,7 @@ mod tests {
                         .iter()
                         .map(|&j| mlp(&target_before, j, &x2)[0])
                         .fold(f64::INFINITY, f64::min);
-                    best = best.max(qmin - alpha * logp);
+                    best = best.max(if td3 { qmin } else { qmin - alpha * logp });
                 }
                 let (r, d) = (
                     batch.reward.double_value(&[g as i64, b]),
@@ -476,23 +531,29 @@ mod tests {
 
     #[test]
     fn one_actor_is_redq() {
-        check_critic_update(1, Sharing::PerUpdate, 2);
+        check_critic_update(1, Sharing::PerUpdate, 2, Backbone::Sac);
     }
 
     #[test]
     fn one_actor_with_the_full_subset_is_maxmin() {
-        check_critic_update(1, Sharing::PerUpdate, 5);
+        check_critic_update(1, Sharing::PerUpdate, 5, Backbone::Sac);
     }
 
     #[test]
     fn per_critic_sharing_gives_each_critic_its_own_batch_and_subset() {
-        check_critic_update(1, Sharing::PerCritic, 2);
+        check_critic_update(1, Sharing::PerCritic, 2, Backbone::Sac);
     }
 
     #[test]
     fn several_actors_take_the_max_over_actors_of_the_subset_min() {
-        check_critic_update(3, Sharing::PerUpdate, 2);
-        check_critic_update(2, Sharing::PerCritic, 3);
+        check_critic_update(3, Sharing::PerUpdate, 2, Backbone::Sac);
+        check_critic_update(2, Sharing::PerCritic, 3, Backbone::Sac);
+    }
+
+    #[test]
+    fn td3_backbone_targets_use_smoothed_target_actors_and_no_entropy() {
+        check_critic_update(3, Sharing::PerUpdate, 2, Backbone::Td3);
+        check_critic_update(2, Sharing::PerCritic, 2, Backbone::Td3);
     }
 
     /// Both sharing modes and every formation run, and per-critic draws N batches per update.
@@ -527,7 +588,18 @@ mod tests {
     /// actor's KL to it falls toward 0.
     #[test]
     fn distillation_pulls_actors_toward_the_best() {
+        check_distillation(Backbone::Sac);
+    }
+
+    /// TD3 backbone: KD is the squared distance to the best actor's deterministic action.
+    #[test]
+    fn td3_distillation_pulls_actions_toward_the_best() {
+        check_distillation(Backbone::Td3);
+    }
+
+    fn check_distillation(backbone: Backbone) {
         let cfg = AlgoConfig {
+            backbone,
             kd_weight: 1.0,
             fixed_alpha: Some(0.0),
             lr: 1e-2,
@@ -556,7 +628,7 @@ mod tests {
         for i in 0..2 {
             assert!(
                 stats.kl_to_best[i] < 0.1 * first[i],
-                "actor {i}: KL to the best {} → {}",
+                "{backbone:?} actor {i}: distance to the best {} → {}",
                 first[i],
                 stats.kl_to_best[i]
             );
@@ -599,14 +671,26 @@ mod tests {
     /// resumed learner's next round equals the original's.
     #[test]
     fn checkpoint_round_trip_continues_identically() {
+        for backbone in [Backbone::Sac, Backbone::Td3] {
+            check_checkpoint_round_trip(backbone);
+        }
+    }
+
+    fn check_checkpoint_round_trip(backbone: Backbone) {
         use crate::checkpoint::{self, TrainingState};
-        let cfg = small(2, 3, 2);
+        let cfg = AlgoConfig {
+            backbone,
+            ..small(2, 3, 2)
+        };
         let mut a = Selkd::new(&cfg, 3, 2, Device::Cpu, 4);
         let mut rb = filled_replay(3, 2, 100);
         for _ in 0..3 {
             a.train_round(&mut rb, 0);
         }
-        let dir = std::env::temp_dir().join(format!("selkd-ckpt-test-{}", std::process::id()));
+        let dir = std::env::temp_dir().join(format!(
+            "selkd-ckpt-test-{}-{backbone:?}",
+            std::process::id()
+        ));
         let state = TrainingState {
             config: crate::config::Config::default(),
             rng: a.rng.clone(),

@@ -547,6 +547,10 @@ impl Learner {
             },
             eval_epoch: self.eval_epoch,
             eval_episodes: self.cfg.eval.episodes as u32,
+            exploration_noise: match self.cfg.algo.backbone {
+                crate::config::Backbone::Sac => 0.0,
+                crate::config::Backbone::Td3 => self.cfg.algo.exploration_noise as f32,
+            },
             stop: stop as u32,
             received,
             budget,

@@ -147,9 +147,52 @@ impl Actor {
     }
 }
 
+impl Actor {
+    /// A deterministic action with Gaussian exploration noise, `clip(tanh(μ) + σ·ε, −1, 1)` (TD3).
+    pub fn noisy_mean_action(&self, obs: &[f32], std: f32, rng: &mut impl Rng) -> Vec<f32> {
+        self.mean_action(obs)
+            .into_iter()
+            .map(|a| {
+                let eps: f32 = rng.sample(StandardNormal);
+                (a + std * eps).clamp(-1.0, 1.0)
+            })
+            .collect()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn noisy_mean_action_adds_clipped_exploration_noise() {
+        use rand::SeedableRng;
+        let l = ActorLayout::new(2, 3, &[4]);
+        let actor = Actor::from_flat(
+            l.clone(),
+            (0..l.num_params())
+                .map(|i| ((i % 7) as f32 - 3.0) * 0.1)
+                .collect(),
+        )
+        .unwrap();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+        let obs = [0.5, -0.2];
+        let mean = actor.mean_action(&obs);
+        assert_eq!(
+            actor.noisy_mean_action(&obs, 0.0, &mut rng),
+            mean,
+            "no noise, no change"
+        );
+        let noisy: Vec<Vec<f32>> = (0..200)
+            .map(|_| actor.noisy_mean_action(&obs, 0.5, &mut rng))
+            .collect();
+        assert!(noisy.iter().flatten().all(|a| (-1.0..=1.0).contains(a)));
+        let spread = noisy.iter().map(|a| (a[0] - mean[0]).abs()).sum::<f32>() / 200.0;
+        assert!(
+            spread > 0.1,
+            "exploration noise is applied: mean |Δ| {spread}"
+        );
+    }
 
     #[test]
     fn layout_counts_every_weight_and_bias() {

@@ -18,7 +18,7 @@
 use iceoryx2::prelude::*;
 
 /// Bumped whenever a message layout or meaning changes; checked in the handshake.
-pub const PROTOCOL_VERSION: u32 = 1;
+pub const PROTOCOL_VERSION: u32 = 2;
 /// Most actors a run may have (fixed arrays in [`Control`] and [`Ranking`]).
 pub const MAX_ACTORS: usize = 64;
 pub const MAX_HIDDEN_LAYERS: usize = 8;
@@ -181,6 +181,9 @@ pub struct Control {
     /// Evaluate once for every epoch up to this one (0 = none yet).
     pub eval_epoch: u64,
     pub eval_episodes: u32,
+    /// 0: act by sampling the stochastic policy (SAC). Above 0: act deterministically, `tanh(μ)`,
+    /// plus Gaussian noise of this std, clipped to [-1, 1] (TD3).
+    pub exploration_noise: f32,
     pub stop: u32,
     /// Per actor: transitions the learner has received so far.
     pub received: [u64; MAX_ACTORS],
@@ -309,6 +312,7 @@ mod tests {
             max_policy_lag: 1,
             eval_epoch: 0,
             eval_episodes: 1,
+            exploration_noise: 0.0,
             stop: 0,
             received: [0; MAX_ACTORS],
             budget: [0; MAX_ACTORS],
