@@ -92,6 +92,9 @@ pub struct AlgoConfig {
     pub sharing: Sharing,
     /// λ_KD, weight of the distillation term.
     pub kd_weight: f64,
+    /// The DPD baseline: actor i owns N/K critics (its target is the min over its own, no max over
+    /// actors) and distils toward its peer (actor i+1) instead of the best.
+    pub paired_critics: bool,
     /// Ablation "SELKD w/o RL": only actor 0 optimises the RL objective; the others only distil.
     pub without_rl: bool,
     /// `target = "max-aqe"`: how many of the highest subset values AQE drops.
@@ -182,6 +185,7 @@ impl Default for AlgoConfig {
             target: Formation::MaxMin,
             sharing: Sharing::PerUpdate,
             kd_weight: 1.0,
+            paired_critics: false,
             without_rl: false,
             aqe_drop: 1,
             fixed_alpha: None,
@@ -280,6 +284,14 @@ impl Config {
         }
         if !(0.0..1.0).contains(&a.polyak) {
             return bad(format!("algo.polyak (ρ) = {} must be in [0, 1)", a.polyak));
+        }
+        if a.paired_critics
+            && (a.actors < 2 || a.critics % a.actors != 0 || a.sharing != Sharing::PerUpdate)
+        {
+            return bad(format!(
+                "algo.paired_critics needs at least 2 actors, algo.critics ({}) a multiple of algo.actors ({}), and sharing = \"per-update\"",
+                a.critics, a.actors
+            ));
         }
         if a.target == Formation::MaxAqe && a.aqe_drop >= a.subset {
             return bad(format!("algo.aqe_drop ({}) must be below algo.subset (M = {}) so AQE keeps at least one value", a.aqe_drop, a.subset));

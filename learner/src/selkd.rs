@@ -142,13 +142,17 @@ impl Selkd {
         let groups = batch.obs.size()[0] as usize;
         // Line 11: the in-target max-min value, without gradient.
         let y = tch::no_grad(|| {
-            self.target(
-                &batch.reward,
-                &batch.terminated,
-                &batch.next_obs,
-                &subsets,
-                groups,
-            )
+            if self.cfg.paired_critics {
+                self.paired_target(&batch.reward, &batch.terminated, &batch.next_obs)
+            } else {
+                self.target(
+                    &batch.reward,
+                    &batch.terminated,
+                    &batch.next_obs,
+                    subsets,
+                    groups,
+                )
+            }
         });
         // Line 12: every critic regresses on its y (all N at once; the loss sums the N critics'
         // losses, so each critic's gradient is its own).
@@ -167,6 +171,62 @@ impl Selkd {
             loss.double_value(&[]) / n as f64,
             q.mean(Kind::Float).double_value(&[]),
         )
+    }
+
+    /// The next actions `ã'_i` for states `[K, R, obs]` (row block i for actor i) and their log-probs
+    /// `[K, R]`: sampled from π_i (SAC), or the target actor's action with clipped smoothing noise
+    /// and no entropy term (TD3).
+    fn next_actions(&mut self, s2: &Tensor) -> (Tensor, Tensor) {
+        let (k, rows) = (s2.size()[0], s2.size()[1]);
+        let eps = self.noise(&[k, rows, self.act_dim as i64]);
+        match &self.target_actors {
+            Some(target_actors) => {
+                let (mu, _) = split_head(&target_actors.forward(s2));
+                let clip = self.cfg.target_noise_clip;
+                let smoothing = (eps * self.cfg.target_noise).clamp(-clip, clip);
+                (
+                    (mu.tanh() + smoothing).clamp(-1.0, 1.0),
+                    Tensor::zeros([k, rows], (Kind::Float, self.device)),
+                )
+            }
+            None => {
+                let (mu, log_std) = split_head(&self.actors.forward(s2));
+                sample(&mu, &log_std, &eps)
+            }
+        }
+    }
+
+    /// The DPD baseline's target (`algo.paired_critics`): actor i owns critics `j·K/N = i`; each
+    /// actor's soft value takes the min over its own target critics (no max over actors), and its
+    /// critics regress on that. One mini-batch per update. Returns y per critic, `[N, B]`.
+    fn paired_target(&mut self, reward: &Tensor, terminated: &Tensor, next_obs: &Tensor) -> Tensor {
+        let (k, n, b) = (
+            self.cfg.actors as i64,
+            self.cfg.critics as i64,
+            self.cfg.batch_size as i64,
+        );
+        let s2 = next_obs.reshape([1, b, -1]).expand([k, b, -1], false);
+        let (a2, logp2) = self.next_actions(&s2);
+        let x2 = Tensor::cat(&[&s2, &a2], -1)
+            .reshape([1, k * b, -1])
+            .expand([n, k * b, -1], false);
+        let q = self.target_critics.forward(&x2).view([n, k, b]);
+        let owned: Vec<Tensor> = (0..k)
+            .map(|i| {
+                let own = Tensor::from_slice(&self.critics_of(i)).to_device(self.device);
+                q.index_select(0, &own).select(1, i).amin(0, false)
+            })
+            .collect();
+        let soft_value = Tensor::stack(&owned, 0) - self.alpha().view([k, 1]) * logp2;
+        let y: Tensor = reward + (1.0 - terminated) * self.cfg.gamma * soft_value; // [K, B]
+        let owner: Vec<i64> = (0..n).map(|j| j * k / n).collect();
+        y.index_select(0, &Tensor::from_slice(&owner).to_device(self.device))
+    }
+
+    /// Paired critics: the critics actor `i` owns.
+    fn critics_of(&self, i: i64) -> Vec<i64> {
+        let (k, n) = (self.cfg.actors as i64, self.cfg.critics as i64);
+        (0..n).filter(|j| j * k / n == i).collect()
     }
 
     /// y for `groups` groups of next states `[groups, B, obs]`, each with its own subset of M
@@ -189,23 +249,7 @@ impl Selkd {
         let s2 = next_obs
             .reshape([1, g * b, -1])
             .expand([k, g * b, -1], false);
-        let eps = self.noise(&[k, g * b, self.act_dim as i64]);
-        let (a2, logp2) = match &self.target_actors {
-            // TD3: the target actors' action with clipped smoothing noise; no entropy term.
-            Some(target_actors) => {
-                let (mu, _) = split_head(&target_actors.forward(&s2));
-                let clip = self.cfg.target_noise_clip;
-                let smoothing = (eps * self.cfg.target_noise).clamp(-clip, clip);
-                (
-                    (mu.tanh() + smoothing).clamp(-1.0, 1.0),
-                    Tensor::zeros([k, g * b], (Kind::Float, self.device)),
-                )
-            }
-            None => {
-                let (mu, log_std) = split_head(&self.actors.forward(&s2));
-                sample(&mu, &log_std, &eps)
-            }
-        };
+        let (a2, logp2) = self.next_actions(&s2);
         // Rows of group gi: (actor, row) pairs; each goes through that group's M target critics.
         let x2 = Tensor::cat(&[&s2, &a2], -1)
             .view([k, g, b, -1])
@@ -266,18 +310,39 @@ impl Selkd {
         let x = Tensor::cat(&[s, &a], -1)
             .reshape([1, k * b, -1])
             .expand([n, k * b, -1], false);
-        let q = self
-            .critics
-            .detached()
-            .forward(&x)
-            .mean_dim(0, false, Kind::Float)
-            .view([k, b]);
+        let q_all = self.critics.detached().forward(&x).view([n, k, b]);
+        let q = if self.cfg.paired_critics {
+            // DPD: each actor is judged by its own critics only.
+            let mut weights = vec![0.0f32; (n * k) as usize];
+            for i in 0..k {
+                let own = self.critics_of(i);
+                for &j in &own {
+                    weights[(j * k + i) as usize] = 1.0 / own.len() as f32;
+                }
+            }
+            let w = Tensor::from_slice(&weights)
+                .to_device(self.device)
+                .view([n, k, 1]);
+            (q_all * w).sum_dim_intlist(0, false, Kind::Float)
+        } else {
+            q_all.mean_dim(0, false, Kind::Float)
+        };
         // Line 18: distillation toward the best actor, held fixed, on actor i's own states.
+        // The reference each actor distils toward: the best actor (SELKD), or with paired critics
+        // (DPD) the next actor, its peer.
+        let reference: Vec<i64> = (0..k)
+            .map(|i| {
+                if self.cfg.paired_critics {
+                    (i + 1) % k
+                } else {
+                    best as i64
+                }
+            })
+            .collect();
         let best_head = self
             .actors
-            .member(best as i64)
-            .forward(&s.reshape([1, k * b, -1]))
-            .view([k, b, -1]);
+            .select(&Tensor::from_slice(&reference).to_device(self.device))
+            .forward(s);
         let (mu_best, log_std_best) = split_head(&best_head);
         // SAC: KL of the two policies; TD3: squared distance of the two deterministic actions.
         let kl = if td3 {
@@ -288,7 +353,9 @@ impl Selkd {
             gaussian_kl(&mu, &log_std, &mu_best, &log_std_best)
         };
         let mut kd = vec![self.cfg.kd_weight as f32; self.cfg.actors];
-        kd[best] = 0.0;
+        if !self.cfg.paired_critics {
+            kd[best] = 0.0;
+        }
         let kd = Tensor::from_slice(&kd).to_device(self.device).view([k, 1]);
         // Line 19 (as a loss to minimise).
         let alpha = if td3 {
@@ -411,11 +478,15 @@ mod tests {
     /// update then moves each critic by Adam's first step (at most lr) and the targets by Polyak.
     /// With the TD3 backbone the same check runs on `ã'_i = clip(tanh(μ̄_i(s')) + clip(0.2ε, ±0.5), ±1)`
     /// from the target actors, without the entropy term.
-    fn check_critic_update(k: usize, sharing: Sharing, m: usize, backbone: Backbone) {
-        let (obs, act, n) = (3, 2, 5);
+    /// With `paired` (the DPD baseline) critic j's target is its owner actor's min over the owner's
+    /// critics, with no max over actors.
+    fn check_critic_update(k: usize, sharing: Sharing, m: usize, backbone: Backbone, paired: bool) {
+        let (obs, act) = (3, 2);
+        let n = if paired { 2 * k } else { 5 };
         let cfg = AlgoConfig {
             sharing,
             backbone,
+            paired_critics: paired,
             ..small(k, n, m)
         };
         let b_size = cfg.batch_size as i64;
@@ -439,12 +510,17 @@ mod tests {
         let before: Vec<Vec<f32>> = (0..n as i64).map(|j| s.critics.member_flat(j)).collect();
         let (critics_before, target_before) = (s.critics.copy(), s.target_critics.copy());
         let alpha = 1.0; // log α starts at 0
-        let mut y = vec![vec![0.0; cfg.batch_size]; groups];
+                         // y[g][b][j]: critic j's target on row b of group g.
+        let mut y = vec![vec![vec![0.0; n]; cfg.batch_size]; groups];
         for g in 0..groups {
             for b in 0..b_size {
                 let s2 = row(&batch.next_obs, g as i64, b);
-                // max over actors of the soft value under the subset's min.
-                let mut best = f64::NEG_INFINITY;
+                let (r, d) = (
+                    batch.reward.double_value(&[g as i64, b]),
+                    batch.terminated.double_value(&[g as i64, b]),
+                );
+                // Every actor's next action, its log-prob, and every target critic's value of it.
+                let mut soft: Vec<(Vec<f64>, f64)> = Vec::new();
                 for i in 0..k {
                     let policy = if td3 {
                         s.target_actors.as_ref().unwrap()
@@ -471,17 +547,33 @@ mod tests {
                         a2.push(u.tanh() as f32);
                     }
                     let x2: Vec<f32> = s2.iter().chain(&a2).copied().collect();
-                    let qmin = subsets[g]
-                        .iter()
-                        .map(|&j| mlp(&target_before, j, &x2)[0])
-                        .fold(f64::INFINITY, f64::min);
-                    best = best.max(if td3 { qmin } else { qmin - alpha * logp });
+                    let q: Vec<f64> = (0..n as i64)
+                        .map(|j| mlp(&target_before, j, &x2)[0])
+                        .collect();
+                    soft.push((q, if td3 { 0.0 } else { alpha * logp }));
                 }
-                let (r, d) = (
-                    batch.reward.double_value(&[g as i64, b]),
-                    batch.terminated.double_value(&[g as i64, b]),
-                );
-                y[g][b as usize] = r + 0.99 * (1.0 - d) * best;
+                let value = |i: usize, members: &[i64]| {
+                    members
+                        .iter()
+                        .map(|&j| soft[i].0[j as usize])
+                        .fold(f64::INFINITY, f64::min)
+                        - soft[i].1
+                };
+                for j in 0..n {
+                    let v = if paired {
+                        let owner = j * k / n;
+                        let own: Vec<i64> = (0..n as i64)
+                            .filter(|&c| c as usize * k / n == owner)
+                            .collect();
+                        value(owner, &own)
+                    } else {
+                        // max over actors of the soft value under the subset's min.
+                        (0..k)
+                            .map(|i| value(i, &subsets[g]))
+                            .fold(f64::NEG_INFINITY, f64::max)
+                    };
+                    y[g][b as usize][j] = r + 0.99 * (1.0 - d) * v;
+                }
             }
         }
         let flat_subsets: Vec<i64> = subsets.concat();
@@ -495,7 +587,7 @@ mod tests {
                     .into_iter()
                     .chain(row(&batch.act, g as i64, b))
                     .collect();
-                want += 0.5 * (mlp(&critics_before, j as i64, &x)[0] - y[g][b as usize]).powi(2);
+                want += 0.5 * (mlp(&critics_before, j as i64, &x)[0] - y[g][b as usize][j]).powi(2);
             }
         }
         want /= (n * cfg.batch_size) as f64;
@@ -531,29 +623,35 @@ mod tests {
 
     #[test]
     fn one_actor_is_redq() {
-        check_critic_update(1, Sharing::PerUpdate, 2, Backbone::Sac);
+        check_critic_update(1, Sharing::PerUpdate, 2, Backbone::Sac, false);
     }
 
     #[test]
     fn one_actor_with_the_full_subset_is_maxmin() {
-        check_critic_update(1, Sharing::PerUpdate, 5, Backbone::Sac);
+        check_critic_update(1, Sharing::PerUpdate, 5, Backbone::Sac, false);
     }
 
     #[test]
     fn per_critic_sharing_gives_each_critic_its_own_batch_and_subset() {
-        check_critic_update(1, Sharing::PerCritic, 2, Backbone::Sac);
+        check_critic_update(1, Sharing::PerCritic, 2, Backbone::Sac, false);
     }
 
     #[test]
     fn several_actors_take_the_max_over_actors_of_the_subset_min() {
-        check_critic_update(3, Sharing::PerUpdate, 2, Backbone::Sac);
-        check_critic_update(2, Sharing::PerCritic, 3, Backbone::Sac);
+        check_critic_update(3, Sharing::PerUpdate, 2, Backbone::Sac, false);
+        check_critic_update(2, Sharing::PerCritic, 3, Backbone::Sac, false);
+    }
+
+    #[test]
+    fn paired_critics_are_dpds_own_critic_targets() {
+        check_critic_update(2, Sharing::PerUpdate, 2, Backbone::Sac, true);
+        check_critic_update(3, Sharing::PerUpdate, 2, Backbone::Td3, true);
     }
 
     #[test]
     fn td3_backbone_targets_use_smoothed_target_actors_and_no_entropy() {
-        check_critic_update(3, Sharing::PerUpdate, 2, Backbone::Td3);
-        check_critic_update(2, Sharing::PerCritic, 2, Backbone::Td3);
+        check_critic_update(3, Sharing::PerUpdate, 2, Backbone::Td3, false);
+        check_critic_update(2, Sharing::PerCritic, 2, Backbone::Td3, false);
     }
 
     /// Both sharing modes and every formation run, and per-critic draws N batches per update.
@@ -629,6 +727,41 @@ mod tests {
             assert!(
                 stats.kl_to_best[i] < 0.1 * first[i],
                 "{backbone:?} actor {i}: distance to the best {} → {}",
+                first[i],
+                stats.kl_to_best[i]
+            );
+        }
+    }
+
+    /// DPD: with paired critics every actor distils toward its peer, so two actors with nothing
+    /// else to learn (Q ≡ 0, α = 0) both move and meet.
+    #[test]
+    fn paired_actors_distil_toward_each_other() {
+        let cfg = AlgoConfig {
+            paired_critics: true,
+            fixed_alpha: Some(0.0),
+            lr: 1e-2,
+            ..small(2, 4, 2)
+        };
+        let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 2);
+        tch::no_grad(|| {
+            let last = s.critics.layers.last().unwrap();
+            let _ = last.weight.shallow_clone().zero_();
+            let _ = last.bias.shallow_clone().zero_();
+        });
+        let mut rb = filled_replay(3, 2, 100);
+        let before = [s.actor_weights(0), s.actor_weights(1)];
+        let mut stats = RoundStats::default();
+        s.update_actors(&mut rb, 0, &mut stats);
+        let first = stats.kl_to_best.clone();
+        for _ in 0..100 {
+            s.update_actors(&mut rb, 0, &mut stats);
+        }
+        for i in 0..2 {
+            assert_ne!(s.actor_weights(i), before[i], "actor {i} distils too");
+            assert!(
+                stats.kl_to_best[i] < 0.1 * first[i],
+                "actor {i}: KL to its peer {} → {}",
                 first[i],
                 stats.kl_to_best[i]
             );
