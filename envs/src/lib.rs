@@ -3,9 +3,16 @@
 //! An env knows nothing of processes or training: it resets from a seed, steps with an action in
 //! `[-1, 1]^A` (scaling to its own actuator range inside), and says whether the episode ended
 //! because of a real terminal state (`terminated`) or a time limit (`truncated`).
+//!
+//! Envs: `pendulum` (Gymnasium `Pendulum-v1`, exact) and `hopper` (Gymnasium `Hopper-v5`'s task
+//! on rapier3d physics instead of MuJoCo). [`physics`] holds the rapier helpers that the
+//! locomotion robots share: world setup, planar root, hinge chains, joint torques and state.
 
+mod hopper;
 mod pendulum;
+pub mod physics;
 
+pub use hopper::Hopper;
 pub use pendulum::Pendulum;
 
 /// What an env is, known before the first reset.
@@ -52,14 +59,18 @@ pub enum EnvError {
 type Constructor = fn() -> Box<dyn Env>;
 
 /// Every env by registry name.
-const REGISTRY: &[(&str, Constructor)] = &[("pendulum", || Box::new(Pendulum::new()))];
+const REGISTRY: &[(&str, Constructor)] = &[
+    ("pendulum", || Box::new(Pendulum::new())),
+    ("hopper", || Box::new(Hopper::new())),
+];
 
 /// The registry names, in order.
 pub fn names() -> Vec<&'static str> {
     REGISTRY.iter().map(|(n, _)| *n).collect()
 }
 
-/// Builds an env by registry name (`Pendulum-v1` is accepted for `pendulum`).
+/// Builds an env by registry name (Gymnasium ids such as `Pendulum-v1` and `Hopper-v5` are
+/// accepted for `pendulum` and `hopper`).
 pub fn make(name: &str) -> Result<Box<dyn Env>, EnvError> {
     let key = canonical(name);
     REGISTRY
@@ -80,6 +91,7 @@ pub fn spec(name: &str) -> Result<EnvSpec, EnvError> {
 fn canonical(name: &str) -> String {
     match name.to_ascii_lowercase().as_str() {
         "pendulum-v1" => "pendulum".to_string(),
+        "hopper-v5" => "hopper".to_string(),
         other => other.to_string(),
     }
 }
@@ -94,6 +106,7 @@ mod tests {
             assert_eq!(make(n).unwrap().spec().id, n);
         }
         assert_eq!(spec("Pendulum-v1").unwrap().obs_dim, 3);
+        assert_eq!(spec("Hopper-v5").unwrap().obs_dim, 11);
         let err = make("pendulm").err().unwrap().to_string();
         assert!(err.contains("pendulm") && err.contains("pendulum"), "{err}");
     }

@@ -1,0 +1,473 @@
+//! Gymnasium's `Hopper-v5` task on rapier3d physics (see [`crate::physics`]): a one-legged planar
+//! robot learns to hop forward. The first physics robot of SELKD, and the standard first
+//! locomotion benchmark after the classic-control tasks.
+//!
+//! Kept from Gymnasium v5 (meaning, not MuJoCo's exact dynamics):
+//! - MuJoCo's `hopper.xml` geometry: torso capsule z 1.45→1.05 (r 0.05), thigh 1.05→0.6 (r 0.05),
+//!   leg 0.6→0.1 (r 0.04), foot along x from −0.13 to 0.26 at z 0.1 (r 0.06); density 1000
+//!   (masses ≈ 3.7, 4.1, 2.8, 5.3 kg; about MuJoCo's, from the same geoms). Hinges about −Y (the XML's
+//!   `0 -1 0` axis, so angle signs match MuJoCo's) at z 1.05, 0.6, 0.1 with ranges [−150°, 0°],
+//!   [−150°, 0°], [−45°, 45°]; the XML's joint defaults armature 1 and damping 1 on them. The root
+//!   is `rootx`, `rootz`, `rooty` (planar, about the torso centre at z 1.25).
+//! - Friction: geoms 0.9, the foot 2.0 (the XML's values), the floor 1.0, combined by maximum as
+//!   MuJoCo does.
+//! - Observation (11): `qpos[1:]` = [z, pitch, thigh, leg, foot angles] and `qvel` = [ẋ, ż,
+//!   pitch rate, 3 joint velocities] clipped to ±10.
+//! - Action (3) in [−1, 1] (clipped), × gear 200 → joint torque, N·m.
+//! - Control dt 0.008 s. Reward = ẋ (torso x over the step / dt) + 1 if healthy − 1e-3·‖a‖².
+//! - Healthy: z > 0.7, |pitch| < 0.2 and every entry of `qpos[2:]` and `qvel` within ±100;
+//!   unhealthy terminates. 1000 steps truncates.
+//! - Reset: the model pose (torso centre at z 1.25, joints at 0: the foot 4 cm above the floor, as
+//!   in MuJoCo) plus U(±5e-3) on every `qpos` and `qvel` entry.
+//!
+//! A state that goes non-finite (rapier quarantines such bodies) terminates the episode with a
+//! zero observation: the env never emits NaN.
+
+use crate::physics::{add_floor, new_world, Articulation, Capsule, LinkDesc, RootJoint, SimParams};
+use crate::{Env, EnvSpec, Step};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use rapier3d::prelude::PhysicsWorld;
+
+const GEAR: f32 = 200.0;
+const CONTROL_DT: f32 = 0.008;
+/// Physics integration per control step: one rapier step of 8 ms with 4 solver iterations.
+///
+/// Rapier's TGS solver substeps inside a step (4 × 2 ms here, MuJoCo's own 0.002 s timestep),
+/// while the multibody's articulated dynamics are assembled once per step; joint damping and
+/// armature are implicit. Measured on saturated bang-bang torques for 1000 steps and on random
+/// episodes (2-core machine), every setting from 1×2 to 8×8 (rapier steps × iterations) stayed
+/// finite and on the floor, and all diverge alike from the 8×8 reference after 25 random steps
+/// (chaotic contact, ~0.15 in `qpos`). Joint-limit overshoot: 1×2 0.022 rad, 1×4 0.003 rad,
+/// 2×4 0.002 rad; random-episode speed: 1×2 38k, 1×4 25k, 2×4 13k, 4×4 7k steps/s. 1×4 is
+/// the cheapest setting that holds the limits well; more iterations cost about linearly.
+pub const SIM: SimParams = SimParams {
+    control_dt: CONTROL_DT,
+    substeps: 1,
+    solver_iterations: 4,
+};
+const INIT_Z: f32 = 1.25;
+const RESET_NOISE: f32 = 5e-3;
+const CTRL_COST_WEIGHT: f64 = 1e-3;
+const HEALTHY_REWARD: f64 = 1.0;
+const OBS_VEL_CLIP: f32 = 10.0;
+const NQ: usize = 6;
+
+fn deg(d: f32) -> f32 {
+    d.to_radians()
+}
+
+/// The hopper's links, MuJoCo's `hopper.xml` in its rest pose.
+pub fn links() -> Vec<LinkDesc> {
+    let hinge = |name, parent, z: f32, range: [f32; 2], geom| LinkDesc {
+        name,
+        parent: Some(parent),
+        anchor: [0.0, 0.0, z],
+        axis: [0.0, -1.0, 0.0],
+        range: Some(range),
+        geom,
+        density: 1000.0,
+        friction: 0.9,
+        armature: 1.0,
+        damping: 1.0,
+    };
+    let cap = |a: [f32; 3], b: [f32; 3], r| Capsule { a, b, r };
+    let mut foot = hinge(
+        "foot",
+        2,
+        0.1,
+        [deg(-45.0), deg(45.0)],
+        cap([-0.13, 0.0, 0.1], [0.26, 0.0, 0.1], 0.06),
+    );
+    foot.friction = 2.0;
+    vec![
+        LinkDesc {
+            name: "torso",
+            parent: None,
+            anchor: [0.0, 0.0, INIT_Z],
+            axis: [0.0; 3],
+            range: None,
+            geom: cap([0.0, 0.0, 1.45], [0.0, 0.0, 1.05], 0.05),
+            density: 1000.0,
+            friction: 0.9,
+            armature: 0.0,
+            damping: 0.0,
+        },
+        hinge(
+            "thigh",
+            0,
+            1.05,
+            [deg(-150.0), 0.0],
+            cap([0.0, 0.0, 1.05], [0.0, 0.0, 0.6], 0.05),
+        ),
+        hinge(
+            "leg",
+            1,
+            0.6,
+            [deg(-150.0), 0.0],
+            cap([0.0, 0.0, 0.6], [0.0, 0.0, 0.1], 0.04),
+        ),
+        foot,
+    ]
+}
+
+pub struct Hopper {
+    spec: EnvSpec,
+    sim: SimParams,
+    world: PhysicsWorld,
+    robot: Articulation,
+    t: usize,
+    rng: Pcg64,
+}
+
+impl Default for Hopper {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+fn build(sim: &SimParams) -> (PhysicsWorld, Articulation) {
+    let mut world = new_world(sim);
+    add_floor(&mut world, 1.0);
+    let robot = Articulation::build(&mut world, RootJoint::Planar, &links());
+    (world, robot)
+}
+
+impl Hopper {
+    pub fn new() -> Self {
+        Self::with_sim(SIM)
+    }
+
+    /// The hopper with other physics settings (`control_dt` must stay [`SIM`]'s 0.008 s).
+    pub fn with_sim(sim: SimParams) -> Self {
+        assert_eq!(sim.control_dt, CONTROL_DT);
+        let (world, robot) = build(&sim);
+        Self {
+            sim,
+            spec: EnvSpec {
+                id: "hopper",
+                obs_dim: 11,
+                act_dim: 3,
+                max_episode_steps: 1000,
+            },
+            world,
+            robot,
+            t: 0,
+            rng: Pcg64::seed_from_u64(0),
+        }
+    }
+
+    /// Starts an episode from a given state (`qpos` = [x, z, pitch, thigh, leg, foot], `qvel`
+    /// the matching velocities) in a fresh world.
+    pub fn set_state(&mut self, qpos: &[f32; NQ], qvel: &[f32; NQ]) -> Vec<f32> {
+        // A fresh world per episode: no contact or solver cache carries over, so an episode
+        // depends only on its seed and actions.
+        let (mut world, robot) = build(&self.sim);
+        robot.set_state(&mut world, qpos, qvel);
+        self.world = world;
+        self.robot = robot;
+        self.t = 0;
+        self.obs(&self.qpos(), &self.qvel())
+    }
+
+    pub fn qpos(&self) -> Vec<f32> {
+        self.robot.qpos(&self.world)
+    }
+
+    pub fn qvel(&self) -> Vec<f32> {
+        self.robot.qvel(&self.world)
+    }
+
+    /// Total mass, kg.
+    pub fn mass(&self) -> f32 {
+        self.robot.mass(&self.world)
+    }
+
+    fn obs(&self, q: &[f32], v: &[f32]) -> Vec<f32> {
+        let mut o = Vec::with_capacity(11);
+        o.extend_from_slice(&q[1..]);
+        o.extend(v.iter().map(|x| x.clamp(-OBS_VEL_CLIP, OBS_VEL_CLIP)));
+        o
+    }
+
+    fn healthy(q: &[f32], v: &[f32]) -> bool {
+        let (z, angle) = (q[1], q[2]);
+        let in_range = q[2..].iter().chain(v).all(|x| *x > -100.0 && *x < 100.0);
+        in_range && z > 0.7 && angle > -0.2 && angle < 0.2
+    }
+}
+
+impl Env for Hopper {
+    fn spec(&self) -> &EnvSpec {
+        &self.spec
+    }
+
+    fn reset(&mut self, seed: Option<u64>) -> Vec<f32> {
+        if let Some(s) = seed {
+            self.rng = Pcg64::seed_from_u64(s);
+        }
+        let mut q = [0.0, INIT_Z, 0.0, 0.0, 0.0, 0.0];
+        let mut v = [0.0; NQ];
+        for x in q.iter_mut() {
+            *x += self.rng.gen_range(-RESET_NOISE..RESET_NOISE);
+        }
+        for x in v.iter_mut() {
+            *x += self.rng.gen_range(-RESET_NOISE..RESET_NOISE);
+        }
+        self.set_state(&q, &v)
+    }
+
+    fn step(&mut self, action: &[f32]) -> Step {
+        let mut a = [0.0f32; 3];
+        for (ai, x) in a.iter_mut().zip(action) {
+            // NaN actions act as zero torque rather than poisoning the physics.
+            *ai = if x.is_nan() { 0.0 } else { x.clamp(-1.0, 1.0) };
+        }
+        let torques = a.map(|x| x * GEAR);
+        let x_before = self.qpos()[0];
+        for _ in 0..self.sim.substeps {
+            self.robot.apply_joint_torques(&mut self.world, &torques);
+            self.world.step();
+        }
+        self.t += 1;
+        let truncated = self.t >= self.spec.max_episode_steps;
+        let ctrl_cost = CTRL_COST_WEIGHT * a.iter().map(|x| (*x as f64).powi(2)).sum::<f64>();
+        if !self.robot.is_sane(&self.world) {
+            return Step {
+                obs: vec![0.0; self.spec.obs_dim],
+                reward: -ctrl_cost,
+                terminated: true,
+                truncated,
+                success: None,
+            };
+        }
+        let (q, v) = (self.qpos(), self.qvel());
+        let x_velocity = (q[0] as f64 - x_before as f64) / CONTROL_DT as f64;
+        let healthy = Self::healthy(&q, &v);
+        let reward = x_velocity + if healthy { HEALTHY_REWARD } else { 0.0 } - ctrl_cost;
+        Step {
+            obs: self.obs(&q, &v),
+            reward,
+            terminated: !healthy,
+            truncated,
+            success: None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn random_actions(seed: u64, n: usize) -> Vec<[f32; 3]> {
+        let mut rng = Pcg64::seed_from_u64(seed);
+        (0..n)
+            .map(|_| [0; 3].map(|_| rng.gen_range(-1.0f32..1.0)))
+            .collect()
+    }
+
+    /// Runs one episode of `policy` (obs → action) from `seed`; returns (forward progress of
+    /// the torso in m, i.e. Σ ẋ·dt, steps, terminated).
+    fn episode(
+        env: &mut Hopper,
+        seed: u64,
+        mut policy: impl FnMut(&[f32], usize) -> [f32; 3],
+    ) -> (f32, usize, bool) {
+        let mut obs = env.reset(Some(seed));
+        let x0 = env.qpos()[0];
+        for t in 0..env.spec().max_episode_steps {
+            let s = env.step(&policy(&obs, t));
+            assert!(s.obs.iter().all(|x| x.is_finite()) && s.reward.is_finite());
+            obs = s.obs;
+            if s.terminated || s.truncated {
+                assert!(s.terminated != s.truncated || t + 1 == 1000);
+                return (env.qpos()[0] - x0, t + 1, s.terminated);
+            }
+        }
+        unreachable!("the time limit truncates at 1000 steps")
+    }
+
+    #[test]
+    fn spec_and_obs_length() {
+        let mut env = Hopper::new();
+        let s = env.spec().clone();
+        assert_eq!(
+            (s.id, s.obs_dim, s.act_dim, s.max_episode_steps),
+            ("hopper", 11, 3, 1000)
+        );
+        let o = env.reset(Some(0));
+        assert_eq!(o.len(), 11);
+        // Reset: the model pose plus noise of at most 5e-3.
+        assert!(
+            (o[0] - 1.25).abs() <= 5e-3 && o[1..].iter().all(|x| x.abs() <= 5e-3),
+            "{o:?}"
+        );
+        assert_eq!(env.step(&[0.0; 3]).obs.len(), 11);
+        let m = env.mass();
+        assert!((14.0..18.0).contains(&m), "mass {m}");
+    }
+
+    #[test]
+    fn same_seed_same_episode_and_seeds_differ() {
+        let acts = random_actions(42, 200);
+        let run = |seed| {
+            let mut env = Hopper::new();
+            let mut out = env.reset(Some(seed));
+            let mut rewards = vec![];
+            // Keeps stepping past a termination on purpose: the physics itself must repeat.
+            for a in &acts {
+                let s = env.step(a);
+                out.extend(s.obs);
+                rewards.push(s.reward.to_bits());
+            }
+            (out.iter().map(|x| x.to_bits()).collect::<Vec<_>>(), rewards)
+        };
+        assert_eq!(run(7), run(7));
+        assert_ne!(run(7).0, run(8).0);
+        // `reset(None)` continues the generator: a second episode differs from the first.
+        let mut env = Hopper::new();
+        let a = env.reset(Some(3));
+        let b = env.reset(None);
+        assert_ne!(a, b);
+    }
+
+    #[test]
+    fn random_episodes_stay_finite_and_end() {
+        let mut env = Hopper::new();
+        for seed in 0..8 {
+            let acts = random_actions(seed + 100, 1000);
+            let (_, n, _) = episode(&mut env, seed, |_, t| acts[t]);
+            assert!(n <= 1000);
+        }
+        // Saturated bang-bang torques for a whole episode, ignoring termination: no NaN, joint
+        // limits held to within a few hundredths of a radian, nothing sinks into the floor.
+        env.reset(Some(1));
+        for t in 0..1000 {
+            let s = if (t / 7) % 2 == 0 { 1.0 } else { -1.0 };
+            let st = env.step(&[s, -s, s]);
+            assert!(st.obs.iter().all(|x| x.is_finite()) && st.reward.is_finite());
+            let q = env.qpos();
+            assert!(q[1] > 0.0, "torso centre below the floor: {q:?}");
+            assert!(q[3] > deg(-152.0) && q[3] < deg(2.0), "thigh {q:?}");
+            assert!(q[4] > deg(-152.0) && q[4] < deg(2.0), "leg {q:?}");
+            assert!(q[5] > deg(-47.0) && q[5] < deg(47.0), "foot {q:?}");
+        }
+        // NaN and out-of-range actions are tolerated.
+        env.reset(Some(2));
+        let s = env.step(&[f32::NAN, 5.0, -5.0]);
+        assert!(s.obs.iter().all(|x| x.is_finite()));
+    }
+
+    #[test]
+    fn dropped_or_pushed_over_terminates() {
+        let mut env = Hopper::new();
+        // Dropped from 1.5 m higher with a slight lean (0.05 rad): healthy through the free
+        // fall (~0.55 s), lands on the foot without passing through the floor, then topples and
+        // terminates (measured: step ~115 of 8 ms). Perfectly upright (pitch 0) it lands and
+        // balances for ~340 steps before toppling: straight joints at their 0 limits make it a
+        // rigid inverted pendulum.
+        env.set_state(&[0.0, 1.25 + 1.5, 0.05, 0.0, 0.0, 0.0], &[0.0; NQ]);
+        let mut end = None;
+        let mut min_z = f32::MAX;
+        for t in 0..250 {
+            let s = env.step(&[0.0; 3]);
+            min_z = min_z.min(env.qpos()[1]);
+            if t < 60 {
+                assert!(!s.terminated, "terminated in free fall at step {t}");
+            }
+            if s.terminated {
+                assert!(!s.truncated && s.reward < 1.0);
+                end = Some(t);
+                break;
+            }
+        }
+        assert!(end.is_some(), "a 1.5 m drop never terminated");
+        assert!(
+            min_z > 1.0,
+            "the robot sank into the floor on landing: z {min_z}"
+        );
+        // Pushed over: pitch 0.5 rad is already unhealthy.
+        env.set_state(&[0.0, 1.25, 0.5, 0.0, 0.0, 0.0], &[0.0; NQ]);
+        let s = env.step(&[0.0; 3]);
+        assert!(s.terminated && !s.truncated);
+        // A small lean falls past |pitch| 0.2 within a second.
+        env.set_state(
+            &[0.0, 1.25, 0.15, 0.0, 0.0, 0.0],
+            &[0.0, 0.0, 0.5, 0.0, 0.0, 0.0],
+        );
+        assert!((0..125).any(|_| env.step(&[0.0; 3]).terminated));
+    }
+
+    /// A linear feedback gait `a = W·obs + b`, found by hill-climbing on this env (seeds
+    /// 100–102; rows: thigh, leg, foot).
+    #[rustfmt::skip]
+    const GAIT: [f32; 36] = [-0.0026556775, -0.5935616, -0.14979564, 0.89263177, 0.53993964, -0.020222783, 0.23450468, -0.40940493, -0.37289423, -0.84778047, 0.5286596, -0.24645725, 0.3543651, -0.21086635, 0.07683012, 0.88534665, -0.07569617, -0.02673468, -0.27284372, 0.09318024, 0.05288299, 0.30189896, 0.13514191, -0.16447708, 0.044058666, 0.13440168, -0.4705351, -0.33501223, -0.33944228, -0.45484406, -0.06788257, -0.45766276, 0.015883595, -0.16533677, 0.32743353, 0.0];
+
+    fn gait(obs: &[f32]) -> [f32; 3] {
+        let mut a = [0.0; 3];
+        for (i, ai) in a.iter_mut().enumerate() {
+            *ai = GAIT[33 + i] + (0..11).map(|j| GAIT[i * 11 + j] * obs[j]).sum::<f32>();
+        }
+        a
+    }
+
+    #[test]
+    fn scripted_gait_beats_standing_still() {
+        let mut env = Hopper::new();
+        let (mut still, mut moving) = (0.0, 0.0);
+        for seed in 0..3 {
+            still += episode(&mut env, seed, |_, _| [0.0; 3]).0;
+            let (d, n, _) = episode(&mut env, seed, |o, _| gait(o));
+            assert!(n >= 500, "the gait fell after {n} steps");
+            moving += d;
+        }
+        assert!(
+            moving > still + 0.75,
+            "gait {moving} m vs standing {still} m (3 episodes)"
+        );
+    }
+
+    // Random-policy episode lengths. Gymnasium's Hopper-v5 (MuJoCo) random-policy episodes are
+    // typically ~10–50 steps (mean about 20). Measured here over 20 episodes (uniform [−1, 1]
+    // actions): lengths 8–69, median 15, mean 21 (rapier's
+    // contacts and joint limits are stiffer than MuJoCo's soft ones, yet the band is the same).
+    #[test]
+    fn random_policy_episode_length_is_plausible() {
+        let mut env = Hopper::new();
+        let lens: Vec<usize> = (0..20)
+            .map(|seed| {
+                let acts = random_actions(seed + 1000, 1000);
+                episode(&mut env, seed, |_, t| acts[t]).1
+            })
+            .collect();
+        let mean = lens.iter().sum::<usize>() as f64 / lens.len() as f64;
+        assert!(
+            (12.0..45.0).contains(&mean),
+            "mean random episode length {mean}: {lens:?}"
+        );
+        assert!(lens.iter().all(|n| (5..300).contains(n)), "{lens:?}");
+    }
+
+    #[test]
+    fn standing_still_is_healthy_at_first() {
+        let mut env = Hopper::new();
+        for seed in 0..3 {
+            env.reset(Some(seed));
+            for t in 0..20 {
+                let s = env.step(&[0.0; 3]);
+                assert!(
+                    !s.terminated,
+                    "seed {seed}: unhealthy at step {t} standing still"
+                );
+                assert!(
+                    s.reward > 0.8 && s.reward < 1.2,
+                    "reward {} at {t}",
+                    s.reward
+                );
+            }
+            let q = env.qpos();
+            // Landed on the foot (the model starts 4 cm up): torso centre near 1.21 m.
+            assert!((q[1] - 1.21).abs() < 0.02, "{q:?}");
+        }
+    }
+}
