@@ -23,7 +23,7 @@
 //! A state that goes non-finite (rapier quarantines such bodies) terminates the episode with a
 //! zero observation: the env never emits NaN.
 
-use crate::physics::{add_floor, new_world, Articulation, Capsule, LinkDesc, RootJoint, SimParams};
+use crate::physics::{add_floor, new_world, Articulation, Geom, LinkDesc, RootJoint, SimParams};
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -60,18 +60,13 @@ fn deg(d: f32) -> f32 {
 /// The hopper's links, MuJoCo's `hopper.xml` in its rest pose.
 pub fn links() -> Vec<LinkDesc> {
     let hinge = |name, parent, z: f32, range: [f32; 2], geom| LinkDesc {
-        name,
-        parent: Some(parent),
-        anchor: [0.0, 0.0, z],
-        axis: [0.0, -1.0, 0.0],
         range: Some(range),
-        geom,
-        density: 1000.0,
         friction: 0.9,
         armature: 1.0,
         damping: 1.0,
+        ..LinkDesc::hinge(name, parent, [0.0, 0.0, z], [0.0, -1.0, 0.0], vec![geom])
     };
-    let cap = |a: [f32; 3], b: [f32; 3], r| Capsule { a, b, r };
+    let cap = Geom::capsule;
     let mut foot = hinge(
         "foot",
         2,
@@ -82,16 +77,12 @@ pub fn links() -> Vec<LinkDesc> {
     foot.friction = 2.0;
     vec![
         LinkDesc {
-            name: "torso",
-            parent: None,
-            anchor: [0.0, 0.0, INIT_Z],
-            axis: [0.0; 3],
-            range: None,
-            geom: cap([0.0, 0.0, 1.45], [0.0, 0.0, 1.05], 0.05),
-            density: 1000.0,
             friction: 0.9,
-            armature: 0.0,
-            damping: 0.0,
+            ..LinkDesc::root(
+                "torso",
+                [0.0, 0.0, INIT_Z],
+                vec![cap([0.0, 0.0, 1.45], [0.0, 0.0, 1.05], 0.05)],
+            )
         },
         hinge(
             "thigh",

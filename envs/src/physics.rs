@@ -1,5 +1,5 @@
-//! Rigid-body physics shared by the locomotion robots (hopper now; walker2d, halfcheetah, ant and
-//! humanoid later), on rapier3d's reduced-coordinate multibodies.
+//! Rigid-body physics shared by the locomotion robots (hopper, walker2d, halfcheetah, ant,
+//! humanoid), on rapier3d's reduced-coordinate multibodies.
 //!
 //! Why multibodies: a robot is a tree of links joined by hinges, and reduced coordinates keep the
 //! joints exact (no drift, no joint-constraint blow-ups under 200 N·m torques) and give joint
@@ -15,10 +15,16 @@
 //! The root of a planar robot ([`RootJoint::Planar`]) is a generic multibody joint from a fixed,
 //! collider-less anchor body at the world origin to the root link, with the free axes
 //! x-slide, z-slide and y-hinge (pitch): the robot cannot leave the x–z plane, and its root
-//! coordinates are MuJoCo's `rootx`, `rootz`, `rooty`.
+//! coordinates are MuJoCo's `rootx`, `rootz`, `rooty`. A free root ([`RootJoint::Free`]) is a
+//! multibody whose root body is dynamic: position and quaternion, as MuJoCo's `freejoint`.
+//!
+//! Every hinge has one axis. MuJoCo bodies with two or three hinges (the humanoid's hips,
+//! abdomen and shoulders) become chains of single-hinge links through geom-less connector links
+//! of negligible mass: rapier's multibody joints cannot have exactly two free rotations.
+//! Joint springs (MuJoCo `stiffness`) use rapier's implicit multibody springs.
 //!
 //! State layout: `qpos` = root coordinates then one angle per hinge, in link order; `qvel` the
-//! matching generalized velocities. Joint torques are applied as equal and opposite world torques
+//! matching generalized velocities (see [`RootJoint`] for the root's part). Joint torques are applied as equal and opposite world torques
 //! about the hinge axis on the child and parent bodies, which projects onto exactly that joint's
 //! generalized force (the ancestor contributions cancel).
 
@@ -75,23 +81,75 @@ pub enum RootJoint {
     /// x-slide, z-slide, y-hinge (pitch) about the root link's origin: 3 coordinates, in that
     /// order, with x and z the origin's world position and pitch the rotation about +Y.
     Planar,
+    /// A free-floating root (MuJoCo's `freejoint`): 7 coordinates, the root origin's world
+    /// position then its orientation as a unit quaternion `w, x, y, z`; 6 velocities, the
+    /// origin's world-frame linear velocity then the angular velocity in the root's own frame
+    /// (MuJoCo's conventions for both).
+    Free,
 }
 
 impl RootJoint {
-    fn ndofs(self) -> usize {
+    /// Generalized velocities of the root.
+    fn nv(self) -> usize {
         match self {
             RootJoint::Planar => 3,
+            RootJoint::Free => 6,
+        }
+    }
+
+    /// Generalized coordinates of the root.
+    fn nq(self) -> usize {
+        match self {
+            RootJoint::Planar => 3,
+            RootJoint::Free => 7,
         }
     }
 }
 
-/// A capsule between two points, radius `r`.
+/// One collision and mass shape of a link, in the world frame of the rest pose.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Capsule {
-    pub a: [f32; 3],
-    pub b: [f32; 3],
-    pub r: f32,
+pub enum Geom {
+    /// A capsule between two points (MuJoCo `fromto`), radius `r`.
+    Capsule { a: [f32; 3], b: [f32; 3], r: f32 },
+    /// A sphere about `c`, radius `r`.
+    Sphere { c: [f32; 3], r: f32 },
 }
+
+impl Geom {
+    /// A capsule between two points, radius `r`.
+    pub fn capsule(a: [f32; 3], b: [f32; 3], r: f32) -> Self {
+        Geom::Capsule { a, b, r }
+    }
+
+    /// Volume, m³ (a link's mass is density × the sum over its geoms, as MuJoCo computes it).
+    pub fn volume(&self) -> f32 {
+        use std::f32::consts::PI;
+        match *self {
+            Geom::Capsule { a, b, r } => {
+                let len = (v3(b) - v3(a)).length();
+                PI * r * r * len + 4.0 / 3.0 * PI * r * r * r
+            }
+            Geom::Sphere { r, .. } => 4.0 / 3.0 * PI * r * r * r,
+        }
+    }
+}
+
+/// Scales every link's density so that the robot weighs `total` kg (MuJoCo's `settotalmass`).
+pub fn set_total_mass(links: &mut [LinkDesc], total: f32) {
+    let mass: f32 = links
+        .iter()
+        .map(|l| l.density * l.geoms.iter().map(Geom::volume).sum::<f32>())
+        .sum();
+    for l in links {
+        l.density *= total / mass;
+    }
+}
+
+/// Mass and inertia given to a link without geoms (the intermediate links that chain single
+/// hinges into a multi-axis joint): small next to any real link, but non-zero, so that the
+/// articulated inertia stays invertible.
+const CONNECTOR_MASS: f32 = 1e-3;
+const CONNECTOR_INERTIA: f32 = 1e-6;
 
 /// One link of a robot, in the world frame of the rest pose (all joint coordinates zero).
 #[derive(Clone, Debug, PartialEq)]
@@ -105,13 +163,50 @@ pub struct LinkDesc {
     pub axis: [f32; 3],
     /// Hinge range in radians, if limited.
     pub range: Option<[f32; 2]>,
-    pub geom: Capsule,
+    /// Collision and mass shapes; none for a connector link inside a multi-axis joint.
+    pub geoms: Vec<Geom>,
     pub density: f32,
     pub friction: f32,
     /// Reflected rotor inertia added on the hinge's coordinate (MuJoCo `armature`), kg·m².
     pub armature: f32,
     /// Viscous joint damping (MuJoCo `damping`), N·m·s/rad.
     pub damping: f32,
+    /// Joint spring toward angle 0 (MuJoCo `stiffness`), N·m/rad; integrated implicitly.
+    pub stiffness: f32,
+}
+
+impl LinkDesc {
+    /// A hinge link with MuJoCo's defaults otherwise zero: no limit, no armature, damping or
+    /// spring, density 1000, friction 1.
+    pub fn hinge(
+        name: &'static str,
+        parent: usize,
+        anchor: [f32; 3],
+        axis: [f32; 3],
+        geoms: Vec<Geom>,
+    ) -> Self {
+        Self {
+            name,
+            parent: Some(parent),
+            anchor,
+            axis,
+            range: None,
+            geoms,
+            density: 1000.0,
+            friction: 1.0,
+            armature: 0.0,
+            damping: 0.0,
+            stiffness: 0.0,
+        }
+    }
+
+    /// The root link, its origin at `anchor`.
+    pub fn root(name: &'static str, anchor: [f32; 3], geoms: Vec<Geom>) -> Self {
+        Self {
+            parent: None,
+            ..Self::hinge(name, 0, anchor, [0.0; 3], geoms)
+        }
+    }
 }
 
 fn v3(a: [f32; 3]) -> Vector {
@@ -128,7 +223,10 @@ pub struct Articulation {
     parents: Vec<usize>,
     /// Hinge axis of each non-root link, in its parent's body frame.
     axes_in_parent: Vec<Vector>,
+    /// Every collider of each link.
+    colliders: Vec<Vec<ColliderHandle>>,
     nq: usize,
+    nv: usize,
 }
 
 impl Articulation {
@@ -138,39 +236,58 @@ impl Articulation {
         assert!(!links.is_empty() && links[0].parent.is_none());
         let groups = InteractionGroups::new(ROBOT, FLOOR, InteractionTestMode::And);
         let mut bodies = Vec::with_capacity(links.len());
+        let mut colliders = Vec::with_capacity(links.len());
         for l in links {
             let origin = v3(l.anchor);
             // Robot bodies must never sleep: a sleeping body ignores applied torques.
-            let body = w.bodies.insert(
-                RigidBodyBuilder::dynamic()
-                    .translation(origin)
-                    .can_sleep(false),
-            );
-            let c = ColliderBuilder::capsule_from_endpoints(
-                v3(l.geom.a) - origin,
-                v3(l.geom.b) - origin,
-                l.geom.r,
-            )
-            .density(l.density)
-            .friction(l.friction)
-            .friction_combine_rule(CoefficientCombineRule::Max)
-            .collision_groups(groups);
-            w.colliders.insert_with_parent(c, body, &mut w.bodies);
+            let mut b = RigidBodyBuilder::dynamic()
+                .translation(origin)
+                .can_sleep(false);
+            if l.geoms.is_empty() {
+                b = b.additional_mass_properties(MassProperties::new(
+                    Vector::ZERO,
+                    CONNECTOR_MASS,
+                    Vector::splat(CONNECTOR_INERTIA),
+                ));
+            }
+            let body = w.bodies.insert(b);
+            let mut handles = Vec::with_capacity(l.geoms.len());
+            for g in &l.geoms {
+                let c = match *g {
+                    Geom::Capsule { a, b, r } => {
+                        ColliderBuilder::capsule_from_endpoints(v3(a) - origin, v3(b) - origin, r)
+                    }
+                    Geom::Sphere { c, r } => ColliderBuilder::ball(r).translation(v3(c) - origin),
+                }
+                .density(l.density)
+                .friction(l.friction)
+                .friction_combine_rule(CoefficientCombineRule::Max)
+                .collision_groups(groups);
+                handles.push(w.colliders.insert_with_parent(c, body, &mut w.bodies));
+            }
+            // Mass properties now, not at the first step: the multibody's inertia and
+            // `mass()` must be right from the start.
+            w.bodies[body].recompute_mass_properties_from_colliders(&w.colliders);
             bodies.push(body);
+            colliders.push(handles);
         }
 
-        // The root joint: from a collider-less fixed anchor at the world origin.
-        let anchor = w.bodies.insert(RigidBodyBuilder::fixed());
-        let root_joint = match root {
-            RootJoint::Planar => GenericJointBuilder::new(
-                JointAxesMask::LIN_Y | JointAxesMask::ANG_X | JointAxesMask::ANG_Z,
-            )
-            .contacts_enabled(false)
-            .build(),
-        };
-        w.multibody_joints
-            .insert(anchor, bodies[0], root_joint, true)
-            .expect("root multibody joint");
+        // The planar root joint: from a collider-less fixed anchor at the world origin. A free
+        // root needs no joint: a multibody whose root body is dynamic floats freely.
+        match root {
+            RootJoint::Planar => {
+                let anchor = w.bodies.insert(RigidBodyBuilder::fixed());
+                let joint = GenericJointBuilder::new(
+                    JointAxesMask::LIN_Y | JointAxesMask::ANG_X | JointAxesMask::ANG_Z,
+                )
+                .contacts_enabled(false)
+                .build();
+                w.multibody_joints
+                    .insert(anchor, bodies[0], joint, true)
+                    .expect("root multibody joint");
+            }
+            RootJoint::Free => assert!(links.len() > 1, "a free robot needs a hinge"),
+        }
 
         let mut parents = vec![usize::MAX];
         let mut axes_in_parent = vec![Vector::ZERO];
@@ -197,10 +314,12 @@ impl Articulation {
 
         let art = Self {
             root,
-            nq: root.ndofs() + links.len() - 1,
+            nq: root.nq() + links.len() - 1,
+            nv: root.nv() + links.len() - 1,
             bodies,
             parents,
             axes_in_parent,
+            colliders,
         };
 
         // Settle the multibody's root type (fixed anchor: no free root dofs), then the per-dof
@@ -213,32 +332,48 @@ impl Articulation {
         mb.set_self_contacts_enabled(false);
         mb.forward_kinematics(&w.bodies, true);
         let mb = art.multibody_mut(w);
-        assert_eq!(mb.ndofs(), art.nq, "multibody dofs vs description");
-        for d in 0..root.ndofs() {
+        assert_eq!(mb.ndofs(), art.nv, "multibody dofs vs description");
+        for d in 0..root.nv() {
             mb.damping_mut()[d] = 0.0;
             mb.armature_mut()[d] = 0.0;
         }
         for (i, l) in links.iter().enumerate().skip(1) {
             let d = art.dof(w, i);
-            let mb = art.multibody_mut(w);
+            let (mb, id) = w
+                .multibody_joints
+                .get_mut(MultibodyJointHandle(art.bodies[i].0))
+                .expect("robot link");
             mb.damping_mut()[d] = l.damping;
             mb.armature_mut()[d] = l.armature;
-        }
-        // The rest pose: root coordinates at the root anchor, hinges at zero.
-        let mut q = vec![0.0; art.nq];
-        match root {
-            RootJoint::Planar => {
-                q[0] = links[0].anchor[0];
-                q[1] = links[0].anchor[2];
+            if l.stiffness != 0.0 {
+                // Rapier's revolute coordinate is the joint frame's AngX (index 3 of 6).
+                let joint = &mut mb.link_mut(id).expect("robot link").joint;
+                joint.set_spring(3, l.stiffness, 0.0);
             }
         }
-        art.set_state(w, &q, &vec![0.0; art.nq]);
+        art.set_state(w, &art.rest_qpos(&links[0]), &vec![0.0; art.nv]);
         art
     }
 
-    /// Number of generalized coordinates (= velocities: planar roots have no quaternion).
+    /// Number of generalized coordinates (`qpos`).
     pub fn nq(&self) -> usize {
         self.nq
+    }
+
+    /// Number of generalized velocities (`qvel`); `nq − 1` for a free root (its quaternion).
+    pub fn nv(&self) -> usize {
+        self.nv
+    }
+
+    /// The rest pose: root coordinates at the root anchor (upright), hinges at zero.
+    fn rest_qpos(&self, root_link: &LinkDesc) -> Vec<f32> {
+        let mut q = vec![0.0; self.nq];
+        let [x, y, z] = root_link.anchor;
+        match self.root {
+            RootJoint::Planar => (q[0], q[1]) = (x, z),
+            RootJoint::Free => q[..4].copy_from_slice(&[x, y, z, 1.0]),
+        }
+        q
     }
 
     fn multibody<'a>(&self, w: &'a PhysicsWorld) -> &'a Multibody {
@@ -271,10 +406,15 @@ impl Articulation {
     /// Generalized coordinates: root coordinates, then hinge angles in link order.
     pub fn qpos(&self, w: &PhysicsWorld) -> Vec<f32> {
         let mut q = Vec::with_capacity(self.nq);
-        let c = self.link(w, 0).joint().coords();
+        let joint = self.link(w, 0).joint();
+        let c = joint.coords();
         match self.root {
             // Free coordinates of the planar root: LIN_X, LIN_Z, ANG_Y.
             RootJoint::Planar => q.extend([c[0], c[2], c[4]]),
+            RootJoint::Free => {
+                let r = joint.joint_rot();
+                q.extend([c[0], c[1], c[2], r.w, r.x, r.y, r.z]);
+            }
         }
         for i in 1..self.bodies.len() {
             q.push(self.link(w, i).joint().coords()[3]);
@@ -285,8 +425,18 @@ impl Articulation {
     /// Generalized velocities, in the order of [`Self::qpos`].
     pub fn qvel(&self, w: &PhysicsWorld) -> Vec<f32> {
         let mb = self.multibody(w);
-        let mut v = Vec::with_capacity(self.nq);
-        v.extend(mb.joint_velocity(self.link(w, 0)).iter());
+        let mut v = Vec::with_capacity(self.nv);
+        let root = self.link(w, 0);
+        let rv = mb.joint_velocity(root);
+        match self.root {
+            RootJoint::Planar => v.extend(rv.iter()),
+            RootJoint::Free => {
+                // Rapier's free root turns with a world-frame angular velocity; MuJoCo's qvel
+                // holds it in the body frame.
+                let local = root.joint().joint_rot().inverse() * Vector::new(rv[3], rv[4], rv[5]);
+                v.extend([rv[0], rv[1], rv[2], local.x, local.y, local.z]);
+            }
+        }
         for i in 1..self.bodies.len() {
             v.push(mb.joint_velocity(self.link(w, i))[0]);
         }
@@ -294,24 +444,46 @@ impl Articulation {
     }
 
     /// Puts the robot in the state `(qpos, qvel)` and moves its bodies there.
+    /// A free root's quaternion is normalised first.
     pub fn set_state(&self, w: &mut PhysicsWorld, qpos: &[f32], qvel: &[f32]) {
-        assert!(qpos.len() == self.nq && qvel.len() == self.nq);
+        assert!(qpos.len() == self.nq && qvel.len() == self.nv);
         let cur = self.qpos(w);
         // Displacements are indexed by dof, like velocities; link i's dof order follows `qpos`.
-        let mut disp = vec![0.0; self.nq];
-        let mut vel = vec![0.0; self.nq];
-        let root_dofs = self.root.ndofs();
-        for k in 0..root_dofs {
-            disp[k] = qpos[k] - cur[k];
-            vel[k] = qvel[k];
+        let mut disp = vec![0.0; self.nv];
+        let mut vel = vec![0.0; self.nv];
+        let (root_nq, root_nv) = (self.root.nq(), self.root.nv());
+        match self.root {
+            RootJoint::Planar => {
+                for k in 0..root_nv {
+                    disp[k] = qpos[k] - cur[k];
+                    vel[k] = qvel[k];
+                }
+            }
+            RootJoint::Free => {
+                // The root pose goes in through its rigid body (forward kinematics reads it
+                // back); the velocity's angular part turns from the body to the world frame.
+                let rot = Rotation::from_xyzw(qpos[4], qpos[5], qpos[6], qpos[3]).normalize();
+                let pose = Pose::from_parts(Vector::new(qpos[0], qpos[1], qpos[2]), rot);
+                w.bodies[self.bodies[0]].set_position(pose, false);
+                let ang = rot * Vector::new(qvel[3], qvel[4], qvel[5]);
+                vel[..6].copy_from_slice(&[qvel[0], qvel[1], qvel[2], ang.x, ang.y, ang.z]);
+            }
         }
         for i in 1..self.bodies.len() {
             let d = self.dof(w, i);
-            let k = root_dofs + i - 1;
-            disp[d] = qpos[k] - cur[k];
-            vel[d] = qvel[k];
+            disp[d] = qpos[root_nq + i - 1] - cur[root_nq + i - 1];
+            vel[d] = qvel[root_nv + i - 1];
         }
-        let mb = self.multibody_mut(w);
+        let free = self.root == RootJoint::Free;
+        let bodies = &w.bodies;
+        let mb = w
+            .multibody_joints
+            .get_mut(MultibodyJointHandle(self.bodies[0].0))
+            .expect("robot multibody")
+            .0;
+        if free {
+            mb.forward_kinematics(bodies, true);
+        }
         mb.apply_displacements(&disp);
         mb.generalized_velocity_mut().copy_from_slice(&vel);
         self.sync_bodies(w);
@@ -348,6 +520,36 @@ impl Articulation {
             w.bodies[self.bodies[child]].add_torque(t, false);
             w.bodies[self.bodies[parent]].add_torque(-t, false);
         }
+    }
+
+    /// The colliders of link `i`.
+    pub fn colliders(&self, i: usize) -> &[ColliderHandle] {
+        &self.colliders[i]
+    }
+
+    /// Number of links.
+    pub fn num_links(&self) -> usize {
+        self.bodies.len()
+    }
+
+    /// The world-frame contact force on each link from the last rapier step (N; normal forces
+    /// only: rapier reports the normal impulse per contact pair).
+    pub fn contact_forces(&self, w: &PhysicsWorld) -> Vec<Vector> {
+        let dt = w.integration_parameters.dt;
+        self.colliders
+            .iter()
+            .map(|cs| {
+                let mut f = Vector::ZERO;
+                for &c in cs {
+                    for pair in w.contact_pairs_with(c) {
+                        // The impulse pushes collider2 along the normal, collider1 against it.
+                        let sign = if pair.collider1 == c { -1.0 } else { 1.0 };
+                        f += sign * pair.total_impulse() / dt;
+                    }
+                }
+                f
+            })
+            .collect()
     }
 
     /// World pose of link `i`'s body.
@@ -388,38 +590,18 @@ mod tests {
         let mut w = new_world(&p);
         add_floor(&mut w, 1.0);
         let links = [
-            LinkDesc {
-                name: "base",
-                parent: None,
-                anchor: [0.0, 0.0, 2.0],
-                axis: [0.0; 3],
-                range: None,
-                geom: Capsule {
-                    a: [0.0, 0.0, 2.0],
-                    b: [0.0, 0.0, 2.2],
-                    r: 0.05,
-                },
-                density: 1000.0,
-                friction: 1.0,
-                armature: 0.0,
-                damping: 0.0,
-            },
-            LinkDesc {
-                name: "arm",
-                parent: Some(0),
-                anchor: [0.0, 0.0, 2.0],
-                axis: [0.0, 1.0, 0.0],
-                range: None,
-                geom: Capsule {
-                    a: [0.0, 0.0, 2.0],
-                    b: [0.5, 0.0, 2.0],
-                    r: 0.05,
-                },
-                density: 1000.0,
-                friction: 1.0,
-                armature: 0.0,
-                damping: 0.0,
-            },
+            LinkDesc::root(
+                "base",
+                [0.0, 0.0, 2.0],
+                vec![Geom::capsule([0.0, 0.0, 2.0], [0.0, 0.0, 2.2], 0.05)],
+            ),
+            LinkDesc::hinge(
+                "arm",
+                0,
+                [0.0, 0.0, 2.0],
+                [0.0, 1.0, 0.0],
+                vec![Geom::capsule([0.0, 0.0, 2.0], [0.5, 0.0, 2.0], 0.05)],
+            ),
         ];
         let art = Articulation::build(&mut w, RootJoint::Planar, &links);
         (w, art)
@@ -474,5 +656,146 @@ mod tests {
         // centre of mass stays (no net external force).
         assert!(v[3] > 0.1, "{v:?}");
         assert!(v[2] < 0.0, "{v:?}");
+    }
+
+    /// A ball with one arm on a free root, `z` above the floor.
+    fn free_world(z: f32) -> (PhysicsWorld, Articulation) {
+        let p = SimParams {
+            control_dt: 0.01,
+            substeps: 1,
+            solver_iterations: 4,
+        };
+        let mut w = new_world(&p);
+        add_floor(&mut w, 1.0);
+        let links = [
+            LinkDesc::root(
+                "ball",
+                [0.0, 0.0, z],
+                vec![Geom::Sphere {
+                    c: [0.0, 0.0, z],
+                    r: 0.25,
+                }],
+            ),
+            LinkDesc {
+                stiffness: 50.0,
+                ..LinkDesc::hinge(
+                    "arm",
+                    0,
+                    [0.25, 0.0, z],
+                    [0.0, 0.0, 1.0],
+                    vec![Geom::capsule([0.25, 0.0, z], [0.65, 0.0, z], 0.05)],
+                )
+            },
+        ];
+        let art = Articulation::build(&mut w, RootJoint::Free, &links);
+        (w, art)
+    }
+
+    #[test]
+    fn free_root_state_round_trips_in_mujoco_conventions() {
+        let (mut w, art) = free_world(1.0);
+        assert_eq!((art.nq(), art.nv()), (8, 7));
+        assert_eq!(art.qpos(&w), vec![0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0]);
+        // A quarter turn about +Z; angular velocity +X in the body frame is world +Y.
+        let h = std::f32::consts::FRAC_1_SQRT_2;
+        let q = [0.5, -0.2, 1.5, h, 0.0, 0.0, h, 0.3];
+        let v = [0.1, 0.2, 0.3, 1.0, 0.0, 0.0, -0.5];
+        art.set_state(&mut w, &q, &v);
+        let (gq, gv) = (art.qpos(&w), art.qvel(&w));
+        for k in 0..8 {
+            assert!((gq[k] - q[k]).abs() < 1e-6, "qpos {gq:?}");
+        }
+        for k in 0..7 {
+            assert!((gv[k] - v[k]).abs() < 1e-6, "qvel {gv:?}");
+        }
+        let mb = art.multibody(&w);
+        let world_ang = mb.joint_velocity(art.link(&w, 0));
+        assert!((world_ang[4] - 1.0).abs() < 1e-6, "{world_ang:?}");
+        // The arm hangs off the ball's local +X, which the turn points along world +Y, then
+        // the 0.3 rad hinge about Z swings it further.
+        let tip = art.pose(&w, 1).transform_point(Vector::new(0.4, 0.0, 0.0));
+        let (s, c) = (std::f32::consts::FRAC_PI_2 + 0.3).sin_cos();
+        let want = Vector::new(0.5, -0.2, 1.5) + 0.25 * Vector::Y + 0.4 * Vector::new(c, s, 0.0);
+        assert!((tip - want).length() < 1e-5, "{tip:?} vs {want:?}");
+    }
+
+    #[test]
+    fn free_root_falls_lands_and_feels_its_weight() {
+        let (mut w, art) = free_world(1.0);
+        for _ in 0..20 {
+            art.apply_joint_torques(&mut w, &[0.0]);
+            w.step();
+        }
+        // Free fall for 0.2 s (the arm's spring holds it straight).
+        let q = art.qpos(&w);
+        assert!((1.0 - q[2] - 0.196).abs() < 0.02, "{q:?}");
+        assert!(art.contact_forces(&w).iter().all(|f| f.length() == 0.0));
+        for _ in 0..300 {
+            art.apply_joint_torques(&mut w, &[0.0]);
+            w.step();
+        }
+        assert!(art.is_sane(&w));
+        // At rest on the floor: the contact forces carry the weight.
+        let weight = art.mass(&w) * -GRAVITY_Z;
+        let up: f32 = art.contact_forces(&w).iter().map(|f| f.z).sum();
+        assert!(
+            (up - weight).abs() < 0.05 * weight,
+            "contact {up} N vs weight {weight} N"
+        );
+    }
+
+    #[test]
+    fn joint_spring_pulls_back_to_zero() {
+        let (mut w, art) = free_world(3.0);
+        w.gravity = Vector::ZERO;
+        let mut q = art.qpos(&w);
+        q[7] = 0.5;
+        art.set_state(&mut w, &q, &[0.0; 7]);
+        let mut crossed = false;
+        for _ in 0..100 {
+            art.apply_joint_torques(&mut w, &[0.0]);
+            w.step();
+            crossed |= art.qpos(&w)[7] < 0.0;
+        }
+        assert!(crossed, "the spring never pulled the hinge past 0");
+        assert!(art.qpos(&w)[7].abs() < 0.6 && art.is_sane(&w));
+    }
+
+    #[test]
+    fn connector_links_chain_hinges_into_a_two_axis_joint() {
+        let p = SimParams {
+            control_dt: 0.01,
+            substeps: 1,
+            solver_iterations: 4,
+        };
+        let mut w = new_world(&p);
+        w.gravity = Vector::ZERO;
+        let cap = |a, b| vec![Geom::capsule(a, b, 0.05)];
+        let links = [
+            LinkDesc::root(
+                "base",
+                [0.0, 0.0, 1.0],
+                cap([0.0, 0.0, 1.0], [0.0, 0.0, 1.2]),
+            ),
+            LinkDesc::hinge("hip_x", 0, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], vec![]),
+            LinkDesc::hinge(
+                "thigh",
+                1,
+                [0.0, 0.0, 1.0],
+                [0.0, 1.0, 0.0],
+                cap([0.0, 0.0, 1.0], [0.0, 0.0, 0.6]),
+            ),
+        ];
+        let art = Articulation::build(&mut w, RootJoint::Free, &links);
+        assert_eq!(art.nv(), 8);
+        let connector = w.bodies[art.bodies[1]].mass();
+        assert!(connector > 0.0 && connector < 0.01, "{connector}");
+        // Torque on each hinge moves its own coordinate.
+        for _ in 0..10 {
+            art.apply_joint_torques(&mut w, &[1.0, -1.0]);
+            w.step();
+        }
+        let v = art.qvel(&w);
+        assert!(v[6] > 0.1 && v[7] < -0.1 && art.is_sane(&w), "{v:?}");
     }
 }
