@@ -297,7 +297,7 @@ fn run(args: &Args) -> Result<()> {
             continue;
         }
         // Nothing allowed yet: sleep until the learner says something.
-        wake.timed_wait(|_| {}, Duration::from_millis(200))?;
+        selkd_protocol::wait_for_wake(&wake, Duration::from_millis(200))?;
         if last_learner_check.elapsed() > Duration::from_secs(2) {
             last_learner_check = Instant::now();
             if !learner_alive(&args.run_id)? {

@@ -265,7 +265,7 @@ impl Learner {
             // handling responsive).
             // A pass that trained does not wait: more rounds may be due.
             if !trained_last {
-                wake.timed_wait(|_| {}, Duration::from_millis(50))?;
+                selkd_protocol::wait_for_wake(&wake, Duration::from_millis(50))?;
             }
             while let Some(r) = reports.receive()? {
                 self.on_report(r.payload());

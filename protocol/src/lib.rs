@@ -455,6 +455,20 @@ pub mod services {
     }
 }
 
+/// Sleeps until a notification arrives on `listener` or `timeout` passes. A signal that cuts the
+/// wait short (Ctrl-C, SIGTERM) is a wake-up like any other, not an error: the caller's loop then
+/// sees its stop flag and shuts down cleanly.
+pub fn wait_for_wake(
+    listener: &iceoryx2::port::listener::Listener<ipc::Service>,
+    timeout: std::time::Duration,
+) -> Result<(), iceoryx2::port::listener::ListenerWaitError> {
+    use iceoryx2::port::listener::ListenerWaitError;
+    match listener.timed_wait(|_| {}, timeout) {
+        Ok(_) | Err(ListenerWaitError::InterruptSignal) => Ok(()),
+        Err(e) => Err(e),
+    }
+}
+
 /// The learner's iceoryx2 node name; workers watch for it to notice a learner that is gone.
 pub fn learner_node_name(run_id: &str) -> String {
     format!("learner-{run_id}")
