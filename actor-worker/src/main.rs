@@ -31,6 +31,9 @@ struct Args {
     /// Env to run; must be the learner's.
     #[arg(long)]
     env: String,
+    /// The run's `[env_options]` as JSON (must be the learner's).
+    #[arg(long, default_value = "{}")]
+    env_options: String,
     /// How many earlier processes ran this worker (the launcher counts restarts); varies the seeds.
     #[arg(long, default_value_t = 0)]
     generation: u32,
@@ -78,8 +81,15 @@ fn seed_for(seed: u64, worker: usize, generation: u32, purpose: u64) -> u64 {
 }
 
 fn run(args: &Args) -> Result<()> {
-    let mut env = selkd_envs::make(&args.env)?;
+    let env_options: selkd_envs::EnvOptions =
+        serde_json::from_str(&args.env_options).map_err(|e| {
+            CannotJoin(format!(
+                "--env-options is not a JSON object of options: {e}"
+            ))
+        })?;
+    let mut env = selkd_envs::make_with(&args.env, &env_options)?;
     let spec = env.spec().clone();
+    let options_fingerprint = selkd_envs::options_fingerprint(&env_options);
     let node = services::node(&format!("actor-worker-{}", args.worker))
         .map_err(|e| anyhow::anyhow!("starting iceoryx2 node: {e}"))?;
     let svc = Services::new(&args.run_id);
@@ -100,7 +110,13 @@ fn run(args: &Args) -> Result<()> {
         }
         std::thread::sleep(Duration::from_millis(20));
     };
-    selkd_protocol::check_peer(&control, spec.id, spec.obs_dim, spec.act_dim)?;
+    selkd_protocol::check_peer(
+        &control,
+        spec.id,
+        options_fingerprint,
+        spec.obs_dim,
+        spec.act_dim,
+    )?;
     if args.worker >= control.actors as usize {
         let msg = format!(
             "--worker {} is out of range: the run has {} actors (0..{})",
@@ -174,6 +190,7 @@ fn run(args: &Args) -> Result<()> {
         generation: args.generation,
         protocol_version: PROTOCOL_VERSION,
         env: Name::new(spec.id),
+        env_options: options_fingerprint,
         obs_dim: spec.obs_dim as u32,
         act_dim: spec.act_dim as u32,
         weights_version: version,
@@ -210,7 +227,7 @@ fn run(args: &Args) -> Result<()> {
     // A restarted worker redoes the current evaluation: its predecessor may have died before reporting
     // it (the learner ignores an epoch it already has).
     let mut evaluated = 0u64;
-    let mut eval_env = selkd_envs::make(&args.env)?;
+    let mut eval_env = selkd_envs::make_with(&args.env, &env_options)?;
     let mut buf = Vec::with_capacity(row.len());
     let mut last_learner_check = Instant::now();
 

@@ -122,12 +122,13 @@ fn spawn_worker(
     bin: &Path,
     run_dir: &Path,
     run_id: &str,
-    env: &str,
+    cfg: &Config,
     worker: usize,
     generation: u32,
     tx: &mpsc::UnboundedSender<Event>,
 ) -> Result<u32> {
     let log = log_file(run_dir, &format!("worker-{worker}.log"))?;
+    let env_options = serde_json::to_string(&cfg.env_options)?;
     let mut child: Child = Command::new(bin)
         .args([
             "--run-id",
@@ -135,7 +136,9 @@ fn spawn_worker(
             "--worker",
             &worker.to_string(),
             "--env",
-            env,
+            &cfg.run.env,
+            "--env-options",
+            &env_options,
             "--generation",
             &generation.to_string(),
         ])
@@ -216,7 +219,7 @@ async fn supervise(
     let mut generation = vec![0u32; k];
     let mut pids = vec![0u32; k];
     for w in 0..k {
-        pids[w] = spawn_worker(worker_bin, run_dir, run_id, &cfg.run.env, w, 0, &tx)?;
+        pids[w] = spawn_worker(worker_bin, run_dir, run_id, cfg, w, 0, &tx)?;
     }
     let tty = std::io::stderr().is_terminal();
     let started = Instant::now();
@@ -264,7 +267,7 @@ async fn supervise(
                     generation[worker] += 1;
                     let why = match (code, signal) { (_, Some(s)) => format!("signal {s}"), (Some(c), _) => format!("exit code {c}"), _ => "unknown".into() };
                     eprintln!("{}selkd: worker {worker} died ({why}); restarting it (generation {})", if tty { "\n" } else { "" }, generation[worker]);
-                    pids[worker] = spawn_worker(worker_bin, run_dir, run_id, &cfg.run.env, worker, generation[worker], &tx)?;
+                    pids[worker] = spawn_worker(worker_bin, run_dir, run_id, cfg, worker, generation[worker], &tx)?;
                 }
                 Some(Event::LearnerExited(status)) => break status,
             }

@@ -13,7 +13,7 @@ mod pendulum;
 pub mod physics;
 
 pub use hopper::Hopper;
-pub use pendulum::Pendulum;
+pub use pendulum::{Pendulum, PendulumOptions};
 
 /// What an env is, known before the first reset.
 #[derive(Clone, Debug, PartialEq)]
@@ -54,38 +54,100 @@ pub trait Env: Send {
 pub enum EnvError {
     #[error("unknown env `{name}`; known envs: {known}")]
     Unknown { name: String, known: String },
+    #[error("env_options for `{env}`: {message}")]
+    Options { env: String, message: String },
 }
 
-type Constructor = fn() -> Box<dyn Env>;
+/// An env's options as a TOML table (the run config's `[env_options]`); each env reads them
+/// into its own options struct, which rejects unknown keys.
+pub type EnvOptions = toml::Table;
+
+type Constructor = fn(&EnvOptions) -> Result<Box<dyn Env>, EnvError>;
 
 /// Every env by registry name.
 const REGISTRY: &[(&str, Constructor)] = &[
-    ("pendulum", || Box::new(Pendulum::new())),
-    ("hopper", || Box::new(Hopper::new())),
+    ("pendulum", |o| {
+        let options: PendulumOptions = parse_options("pendulum", o)?;
+        check("pendulum", options.validate())?;
+        Ok(Box::new(Pendulum::with_options(&options)))
+    }),
+    ("hopper", |o| without_options("hopper", o, Hopper::new)),
 ];
+
+/// Reads `options` into an env's options struct (its defaults fill what is missing).
+fn parse_options<T: serde::de::DeserializeOwned>(
+    env: &str,
+    options: &EnvOptions,
+) -> Result<T, EnvError> {
+    toml::Value::Table(options.clone())
+        .try_into()
+        .map_err(|e: toml::de::Error| EnvError::Options {
+            env: env.into(),
+            message: e.message().trim().to_string(),
+        })
+}
+
+fn check(env: &str, valid: Result<(), String>) -> Result<(), EnvError> {
+    valid.map_err(|message| EnvError::Options {
+        env: env.into(),
+        message,
+    })
+}
+
+/// The constructor of an env that has no options: any option is an error.
+fn without_options<E: Env + 'static>(
+    env: &str,
+    options: &EnvOptions,
+    new: fn() -> E,
+) -> Result<Box<dyn Env>, EnvError> {
+    match options.keys().next() {
+        None => Ok(Box::new(new())),
+        Some(key) => Err(EnvError::Options {
+            env: env.into(),
+            message: format!("`{env}` takes no options, but `{key}` was given"),
+        }),
+    }
+}
 
 /// The registry names, in order.
 pub fn names() -> Vec<&'static str> {
     REGISTRY.iter().map(|(n, _)| *n).collect()
 }
 
-/// Builds an env by registry name (Gymnasium ids such as `Pendulum-v1` and `Hopper-v5` are
-/// accepted for `pendulum` and `hopper`).
+/// Builds an env by registry name with its default options (Gymnasium ids such as
+/// `Pendulum-v1` and `Hopper-v5` are accepted for `pendulum` and `hopper`).
 pub fn make(name: &str) -> Result<Box<dyn Env>, EnvError> {
+    make_with(name, &EnvOptions::new())
+}
+
+/// Builds an env by registry name with `options` (checked: unknown keys and bad values are
+/// errors that name them).
+pub fn make_with(name: &str, options: &EnvOptions) -> Result<Box<dyn Env>, EnvError> {
     let key = canonical(name);
-    REGISTRY
+    let make = REGISTRY
         .iter()
         .find(|(n, _)| *n == key)
-        .map(|(_, make)| make())
+        .map(|(_, make)| make)
         .ok_or_else(|| EnvError::Unknown {
             name: name.to_string(),
             known: names().join(", "),
-        })
+        })?;
+    make(options)
 }
 
 /// The spec of a registered env, without keeping the env.
 pub fn spec(name: &str) -> Result<EnvSpec, EnvError> {
     make(name).map(|e| e.spec().clone())
+}
+
+/// A fingerprint of `options` (order-independent), so that a learner and its workers can check
+/// that they run the same env variant.
+pub fn options_fingerprint(options: &EnvOptions) -> u64 {
+    // `toml::Table` keeps keys sorted, so its text is canonical. FNV-1a, stable across builds.
+    let text = toml::to_string(options).unwrap_or_default();
+    text.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+    })
 }
 
 fn canonical(name: &str) -> String {
@@ -109,5 +171,40 @@ mod tests {
         assert_eq!(spec("Hopper-v5").unwrap().obs_dim, 11);
         let err = make("pendulm").err().unwrap().to_string();
         assert!(err.contains("pendulm") && err.contains("pendulum"), "{err}");
+    }
+
+    fn table(text: &str) -> EnvOptions {
+        toml::from_str(text).unwrap()
+    }
+
+    #[test]
+    fn options_are_read_checked_and_fingerprinted() {
+        // Pendulum's gravity: from the same seeded start, a stronger pull changes the angular
+        // velocity more in one step.
+        let pull = |opts: &str| {
+            let mut env = make_with("pendulum", &table(opts)).unwrap();
+            let before = env.reset(Some(0))[2];
+            (env.step(&[0.0]).obs[2] - before).abs()
+        };
+        assert!(pull("g = 20.0") > 1.5 * pull(""), "g is not applied");
+        let err = |name: &str, opts: &str| make_with(name, &table(opts)).err().unwrap().to_string();
+        let e = err("pendulum", "gravity = 3.0");
+        assert!(
+            e.contains("env_options for `pendulum`") && e.contains("gravity"),
+            "{e}"
+        );
+        let e = err("pendulum", "g = -1.0");
+        assert!(e.contains("g = -1 must be a positive number"), "{e}");
+        let e = err("hopper", "g = 1.0");
+        assert!(e.contains("takes no options") && e.contains("`g`"), "{e}");
+        assert!(!e.contains('\n'));
+        assert_eq!(
+            options_fingerprint(&table("a = 1\nb = 2")),
+            options_fingerprint(&table("b = 2\na = 1"))
+        );
+        assert_ne!(
+            options_fingerprint(&table("g = 10.0")),
+            options_fingerprint(&EnvOptions::new())
+        );
     }
 }

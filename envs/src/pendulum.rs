@@ -1,20 +1,44 @@
 //! Gymnasium's `Pendulum-v1`, ported exactly (g = 10, m = 1, l = 1, dt = 0.05, max speed 8,
 //! max torque 2). Torque = 2 · action. The 200-step limit is a truncation: the task never terminates.
+//! Like Gymnasium's `g` argument, the gravity can be changed ([`PendulumOptions`]).
 
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use std::f64::consts::PI;
 
-const G: f64 = 10.0;
 const M: f64 = 1.0;
 const L: f64 = 1.0;
 const DT: f64 = 0.05;
 const MAX_SPEED: f64 = 8.0;
 const MAX_TORQUE: f64 = 2.0;
 
+/// Options (the run config's `[env_options]`).
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PendulumOptions {
+    /// Gravity, m/s² (Gymnasium's default 10).
+    pub g: f64,
+}
+
+impl Default for PendulumOptions {
+    fn default() -> Self {
+        Self { g: 10.0 }
+    }
+}
+
+impl PendulumOptions {
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.g.is_finite() && self.g > 0.0) {
+            return Err(format!("g = {} must be a positive number", self.g));
+        }
+        Ok(())
+    }
+}
+
 pub struct Pendulum {
     spec: EnvSpec,
+    g: f64,
     theta: f64,
     theta_dot: f64,
     t: usize,
@@ -29,7 +53,13 @@ impl Default for Pendulum {
 
 impl Pendulum {
     pub fn new() -> Self {
+        Self::with_options(&PendulumOptions::default())
+    }
+
+    /// Options are assumed valid ([`PendulumOptions::validate`]).
+    pub fn with_options(options: &PendulumOptions) -> Self {
         Self {
+            g: options.g,
             spec: EnvSpec {
                 id: "pendulum",
                 obs_dim: 3,
@@ -87,7 +117,8 @@ impl Env for Pendulum {
         let u = (2.0 * action[0].clamp(-1.0, 1.0)) as f64;
         let (th, thdot) = (self.theta, self.theta_dot);
         let cost = angle_normalize(th).powi(2) + 0.1 * thdot.powi(2) + 0.001 * u.powi(2);
-        let new_thdot = (thdot + (3.0 * G / (2.0 * L) * th.sin() + 3.0 / (M * L * L) * u) * DT)
+        let new_thdot = (thdot
+            + (3.0 * self.g / (2.0 * L) * th.sin() + 3.0 / (M * L * L) * u) * DT)
             .clamp(-MAX_SPEED, MAX_SPEED);
         self.theta = th + new_thdot * DT;
         self.theta_dot = new_thdot;

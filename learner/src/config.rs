@@ -12,6 +12,8 @@ pub struct Config {
     pub eval: EvalConfig,
     #[serde(rename = "async")]
     pub asynchronous: AsyncConfig,
+    /// Options of `run.env` (each env documents its own; most have none).
+    pub env_options: toml::Table,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -144,6 +146,7 @@ impl Default for Config {
             algo: AlgoConfig::default(),
             eval: EvalConfig::default(),
             asynchronous: AsyncConfig::default(),
+            env_options: toml::Table::new(),
         }
     }
 }
@@ -246,12 +249,16 @@ impl Config {
     pub fn validate(&self) -> Result<(), ConfigError> {
         let a = &self.algo;
         let bad = |m: String| Err(ConfigError::Invalid(m));
-        if selkd_envs::spec(&self.run.env).is_err() {
-            return bad(format!(
-                "run.env = \"{}\" is not a known env; choose one of: {}",
-                self.run.env,
-                selkd_envs::names().join(", ")
-            ));
+        match self.env_spec() {
+            Err(selkd_envs::EnvError::Unknown { .. }) => {
+                return bad(format!(
+                    "run.env = \"{}\" is not a known env; choose one of: {}",
+                    self.run.env,
+                    selkd_envs::names().join(", ")
+                ))
+            }
+            Err(e) => return bad(one_line(&e.to_string())),
+            Ok(_) => {}
         }
         if a.actors == 0 {
             return bad("algo.actors (K) must be at least 1".into());
@@ -359,6 +366,16 @@ impl Config {
         self.run.total_env_steps.div_ceil(self.algo.actors as u64)
     }
 
+    /// The spec of `run.env` built with `[env_options]` (options may change its sizes).
+    pub fn env_spec(&self) -> Result<selkd_envs::EnvSpec, selkd_envs::EnvError> {
+        selkd_envs::make_with(&self.run.env, &self.env_options).map(|e| e.spec().clone())
+    }
+
+    /// The fingerprint of `[env_options]` that learner and workers compare in the handshake.
+    pub fn env_options_fingerprint(&self) -> u64 {
+        selkd_envs::options_fingerprint(&self.env_options)
+    }
+
     pub fn epoch_per_actor(&self) -> u64 {
         self.eval.epoch_env_steps / self.algo.actors as u64
     }
@@ -440,9 +457,16 @@ mod tests {
         assert!(err("", &["algo.target=\"max-median\""]).contains("max-min"));
         assert!(err("", &["nonsense"]).contains("key=value"));
         assert!(err("", &["algo.target=\"max-aqe\"", "algo.aqe_drop=2"]).contains("algo.aqe_drop"));
+        let e = err("", &["env_options.gravity=3"]);
+        assert!(
+            e.contains("env_options for `pendulum`") && e.contains("gravity"),
+            "{e}"
+        );
+        assert!(err("", &["run.env=hopper", "env_options.g=3"]).contains("takes no options"));
         for e in [
             err("", &["algo.subset=11"]),
             err("[algo]\ncritcs = 3\n", &[]),
+            err("", &["env_options.gravity=3"]),
         ] {
             assert!(!e.contains('\n'), "one line: {e}");
         }

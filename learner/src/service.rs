@@ -87,7 +87,7 @@ pub struct Learner {
 
 impl Learner {
     pub fn new(cfg: Config, run_dir: &Path, resume: Option<&Path>) -> Result<Self> {
-        let spec = selkd_envs::spec(&cfg.run.env)?;
+        let spec = cfg.env_spec()?;
         let device = parse_device(&cfg.run.device)?;
         if cfg.run.threads > 0 {
             tch::set_num_threads(cfg.run.threads as i32);
@@ -368,9 +368,10 @@ impl Learner {
         }
         match r.kind {
             ReportKind::Hello => {
-                let spec = selkd_envs::spec(&self.cfg.run.env).expect("validated");
+                let spec = self.cfg.env_spec().expect("validated");
                 if r.protocol_version != PROTOCOL_VERSION
                     || r.env.as_str() != spec.id
+                    || r.env_options != self.cfg.env_options_fingerprint()
                     || r.obs_dim as usize != spec.obs_dim
                     || r.act_dim as usize != spec.act_dim
                 {
@@ -501,7 +502,7 @@ impl Learner {
     }
 
     fn control(&self, stop: bool) -> Control {
-        let spec = selkd_envs::spec(&self.cfg.run.env).expect("validated");
+        let spec = self.cfg.env_spec().expect("validated");
         let per_actor_cap = self.cfg.steps_per_actor();
         let mut budget = [0u64; MAX_ACTORS];
         match self.cfg.run.mode {
@@ -534,6 +535,7 @@ impl Learner {
             protocol_version: PROTOCOL_VERSION,
             actors: self.k as u32,
             env: Name::new(spec.id),
+            env_options: self.cfg.env_options_fingerprint(),
             obs_dim: spec.obs_dim as u32,
             act_dim: spec.act_dim as u32,
             seed: self.cfg.run.seed,

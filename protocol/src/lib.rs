@@ -18,7 +18,7 @@
 use iceoryx2::prelude::*;
 
 /// Bumped whenever a message layout or meaning changes; checked in the handshake.
-pub const PROTOCOL_VERSION: u32 = 2;
+pub const PROTOCOL_VERSION: u32 = 3;
 /// Most actors a run may have (fixed arrays in [`Control`] and [`Ranking`]).
 pub const MAX_ACTORS: usize = 64;
 pub const MAX_HIDDEN_LAYERS: usize = 8;
@@ -145,6 +145,8 @@ pub struct Report {
     pub generation: u32,
     pub protocol_version: u32,
     pub env: Name,
+    /// Fingerprint of the env's options (`selkd_envs::options_fingerprint`).
+    pub env_options: u64,
     pub obs_dim: u32,
     pub act_dim: u32,
     /// Weights version the worker holds (hello) or evaluated (evaluation).
@@ -166,6 +168,8 @@ pub struct Control {
     pub protocol_version: u32,
     pub actors: u32,
     pub env: Name,
+    /// Fingerprint of the env's options (`selkd_envs::options_fingerprint`).
+    pub env_options: u64,
     pub obs_dim: u32,
     pub act_dim: u32,
     pub seed: u64,
@@ -265,12 +269,18 @@ pub enum ProtocolError {
         wo: u32,
         wa: u32,
     },
+    #[error(
+        "this worker runs env `{env}` with other options than the run: start it with the run's \
+         [env_options] as --env-options (`selkd train` does this)"
+    )]
+    OptionsMismatch { env: String },
 }
 
 /// The worker side of the handshake: does this worker fit the run the learner announced?
 pub fn check_peer(
     control: &Control,
     env: &str,
+    env_options: u64,
     obs_dim: usize,
     act_dim: usize,
 ) -> Result<(), ProtocolError> {
@@ -279,6 +289,9 @@ pub fn check_peer(
         && control.obs_dim as usize == obs_dim
         && control.act_dim as usize == act_dim
     {
+        if control.env_options != env_options {
+            return Err(ProtocolError::OptionsMismatch { env: env.into() });
+        }
         return Ok(());
     }
     Err(ProtocolError::Mismatch {
@@ -302,6 +315,7 @@ mod tests {
             protocol_version: PROTOCOL_VERSION,
             actors: 2,
             env: Name::new("pendulum"),
+            env_options: 7,
             obs_dim: 3,
             act_dim: 1,
             seed: 0,
@@ -321,8 +335,15 @@ mod tests {
 
     #[test]
     fn handshake_accepts_a_match_and_names_both_sides_of_a_mismatch() {
-        assert!(check_peer(&control(), "pendulum", 3, 1).is_ok());
-        let e = check_peer(&control(), "hopper", 11, 3)
+        assert!(check_peer(&control(), "pendulum", 7, 3, 1).is_ok());
+        let e = check_peer(&control(), "pendulum", 8, 3, 1)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("other options") && e.contains("--env-options"),
+            "{e}"
+        );
+        let e = check_peer(&control(), "hopper", 7, 11, 3)
             .unwrap_err()
             .to_string();
         assert!(

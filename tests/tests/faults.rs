@@ -200,29 +200,34 @@ fn a_worker_that_does_not_fit_the_run_is_refused_with_a_clear_error() {
     let run_id = format!("refuse{}", std::process::id());
     let mut learner = std::process::Command::new(bin("learner"));
     learner
-        .args(["--run-id", &run_id, "--set", "algo.actors=2", "--run-dir"])
+        .args(["--run-id", &run_id, "--set", "algo.actors=2"])
+        .args(["--set", "env_options.g=9.81", "--run-dir"])
         .arg(&dir);
     let mut learner = spawn(learner);
-    let mut worker = std::process::Command::new(bin("actor-worker"));
-    worker.args([
-        "--run-id",
-        &run_id,
-        "--worker",
-        "5",
-        "--env",
-        "pendulum",
-        "--connect-timeout",
-        "30",
-    ]);
-    let out = run(worker);
+    let worker = |index: &str, options: &str| {
+        let mut worker = std::process::Command::new(bin("actor-worker"));
+        worker.args(["--run-id", &run_id, "--worker", index, "--env", "pendulum"]);
+        worker.args(["--env-options", options, "--connect-timeout", "30"]);
+        let out = run(worker);
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).to_string(),
+        )
+    };
+    let out_of_range = worker("5", r#"{"g": 9.81}"#);
+    // Same env, other options: a different task, refused rather than mixed into the run.
+    let other_options = worker("0", r#"{"g": 3.7}"#);
     let _ = learner.kill();
     let _ = learner.wait();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{err}");
+    let (code, err) = out_of_range;
+    assert_eq!(code, Some(2), "{err}");
     assert!(
         err.contains("--worker 5 is out of range: the run has 2 actors"),
         "{err}"
     );
+    let (code, err) = other_options;
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("other options than the run"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
