@@ -62,6 +62,26 @@ fn main() {
                 loss.backward();
             },
         );
+        let critics = s.critics.copy();
+        time(&format!("[{round}] polyak"), 40, || {
+            s.target_critics.polyak_toward(&critics, 0.995)
+        });
+        let idx = Tensor::from_slice(&[3i64, 7]);
+        let x2 = Tensor::randn(
+            [2, 256, obs as i64 + act as i64],
+            (Kind::Float, Device::Cpu),
+        );
+        time(
+            &format!("[{round}] target critics select+forward"),
+            40,
+            || {
+                let _ = tch::no_grad(|| s.target_critics.select(&idx).forward(&x2));
+            },
+        );
+        let s2 = Tensor::randn([1, 256, obs as i64], (Kind::Float, Device::Cpu));
+        time(&format!("[{round}] actor forward (target)"), 40, || {
+            let _ = tch::no_grad(|| s.actors.forward(&s2));
+        });
         time(&format!("[{round}] adam"), 40, || {
             s.critic_opt.step(&s.critics.params())
         });
