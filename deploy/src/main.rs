@@ -28,9 +28,12 @@ enum Command {
     Plot {
         /// Run directories (each holds metrics.csv).
         runs: Vec<std::path::PathBuf>,
-        /// Output file (default: FIRST_RUN/returns.svg).
+        /// Output file (default: FIRST_RUN/returns.svg, or success.svg for --metric success).
         #[arg(long)]
         out: Option<std::path::PathBuf>,
+        /// What to draw: the evaluation return, or the success rate (tasks with success).
+        #[arg(long, value_enum, default_value = "return")]
+        metric: plot::Metric,
     },
     /// Benchmarks (commands, not tests).
     #[command(subcommand)]
@@ -42,7 +45,7 @@ fn main() {
     let result = match cli.command {
         Command::Train(args) => train::run(args),
         Command::Bench(b) => bench::run(b).map(|()| 0),
-        Command::Plot { runs, out } => plot::run(&runs, out).map(|p| {
+        Command::Plot { runs, out, metric } => plot::run(&runs, out, metric).map(|p| {
             eprintln!("selkd: wrote {}", p.display());
             0
         }),

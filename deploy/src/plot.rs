@@ -3,11 +3,42 @@
 //!
 //! One run: every actor's evaluation return per epoch, the best of them in bold. Several runs
 //! (e.g. seeds): the mean over runs of the best actor's return, with a ±½ standard-deviation band,
-//! as the paper draws its curves.
+//! as the paper draws its curves. `--metric success` draws the evaluation success rate instead
+//! (tasks with a success criterion, such as the assembly task).
 
 use anyhow::{bail, Context, Result};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+
+/// What the curves show.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Metric {
+    /// Undiscounted evaluation return (`eval_return_i`).
+    Return,
+    /// Evaluation success rate (`eval_success_i`), for tasks that report success.
+    Success,
+}
+
+impl Metric {
+    fn column_prefix(self) -> &'static str {
+        match self {
+            Metric::Return => "eval_return_",
+            Metric::Success => "eval_success_",
+        }
+    }
+    fn label(self) -> &'static str {
+        match self {
+            Metric::Return => "evaluation return",
+            Metric::Success => "evaluation success rate",
+        }
+    }
+    fn file_name(self) -> &'static str {
+        match self {
+            Metric::Return => "returns.svg",
+            Metric::Success => "success.svg",
+        }
+    }
+}
 
 struct Curve {
     steps: Vec<f64>,
@@ -15,7 +46,7 @@ struct Curve {
     actors: Vec<Vec<f64>>,
 }
 
-fn read(run: &Path) -> Result<Curve> {
+fn read(run: &Path, metric: Metric) -> Result<Curve> {
     let path = run.join("metrics.csv");
     let text = std::fs::read_to_string(&path).with_context(|| {
         format!(
@@ -37,9 +68,16 @@ fn read(run: &Path) -> Result<Curve> {
     let eval_cols: Vec<usize> = header
         .iter()
         .enumerate()
-        .filter(|(_, h)| h.starts_with("eval_return_"))
+        .filter(|(_, h)| h.starts_with(metric.column_prefix()))
         .map(|(i, _)| i)
         .collect();
+    if eval_cols.is_empty() {
+        bail!(
+            "{} has no {}* columns (written by an older selkd?)",
+            path.display(),
+            metric.column_prefix()
+        );
+    }
     let mut c = Curve {
         steps: Vec::new(),
         actors: vec![Vec::new(); eval_cols.len()],
@@ -57,6 +95,13 @@ fn read(run: &Path) -> Result<Curve> {
     if c.steps.is_empty() {
         bail!("{} has no epochs yet", path.display());
     }
+    if c.actors.iter().flatten().all(|v| !v.is_finite()) {
+        bail!(
+            "{} has no {} values (for --metric success, the task must report success)",
+            path.display(),
+            metric.label()
+        );
+    }
     Ok(c)
 }
 
@@ -72,12 +117,15 @@ fn best(c: &Curve) -> Vec<f64> {
         .collect()
 }
 
-pub fn run(runs: &[PathBuf], out: Option<PathBuf>) -> Result<PathBuf> {
+pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric) -> Result<PathBuf> {
     if runs.is_empty() {
         bail!("name at least one run directory");
     }
-    let curves = runs.iter().map(|r| read(r)).collect::<Result<Vec<_>>>()?;
-    let out = out.unwrap_or_else(|| runs[0].join("returns.svg"));
+    let curves = runs
+        .iter()
+        .map(|r| read(r, metric))
+        .collect::<Result<Vec<_>>>()?;
+    let out = out.unwrap_or_else(|| runs[0].join(metric.file_name()));
     // Series: (points, stroke width, colour) and an optional band.
     let palette = [
         "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
@@ -102,7 +150,7 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>) -> Result<PathBuf> {
             "#000".into(),
             "best actor".into(),
         ));
-        title = format!("{}: evaluation return per actor", runs[0].display());
+        title = format!("{}: {} per actor", runs[0].display(), metric.label());
     } else {
         let n = curves.iter().map(|c| c.steps.len()).min().unwrap();
         let mut mean_line = Vec::new();
@@ -125,7 +173,11 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>) -> Result<PathBuf> {
             palette[0].into(),
             format!("best actor, mean of {} runs (band ±½ sd)", curves.len()),
         ));
-        title = format!("{} runs: evaluation return of the best actor", curves.len());
+        title = format!(
+            "{} runs: {} of the best actor",
+            curves.len(),
+            metric.label()
+        );
     }
     let pts = lines
         .iter()
@@ -158,12 +210,14 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>) -> Result<PathBuf> {
         r#"<rect width="100%" height="100%" fill="white"/><text x="{l}" y="24" font-size="15">{}</text>"#,
         escape(&title)
     )?;
+    // Returns span hundreds; rates lie in [0, 1].
+    let prec = if y1 - y0 < 10.0 { 2 } else { 0 };
     for i in 0..=5 {
         let yv = y0 + (y1 - y0) * i as f64 / 5.0;
         let xv = x0 + (x1 - x0) * i as f64 / 5.0;
         writeln!(
             svg,
-            r##"<line x1="{l}" x2="{}" y1="{y}" y2="{y}" stroke="#ddd"/><text x="{}" y="{}" text-anchor="end">{yv:.0}</text>"##,
+            r##"<line x1="{l}" x2="{}" y1="{y}" y2="{y}" stroke="#ddd"/><text x="{}" y="{}" text-anchor="end">{yv:.prec$}</text>"##,
             w - r,
             l - 6.0,
             sy(yv) + 4.0,
@@ -184,8 +238,12 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>) -> Result<PathBuf> {
     )?;
     writeln!(
         svg,
-        r#"<text transform="translate(18,{}) rotate(-90)" text-anchor="middle">undiscounted evaluation return</text>"#,
-        (t + h - b) / 2.0
+        r#"<text transform="translate(18,{}) rotate(-90)" text-anchor="middle">{}</text>"#,
+        (t + h - b) / 2.0,
+        match metric {
+            Metric::Return => "undiscounted evaluation return",
+            Metric::Success => "evaluation success rate",
+        }
     )?;
     if !band.is_empty() {
         let upper: Vec<String> = band
@@ -236,4 +294,53 @@ fn escape(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run_dir(name: &str, metrics: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("selkd-plot-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("metrics.csv"), metrics).unwrap();
+        dir
+    }
+
+    #[test]
+    fn success_curves_come_from_the_success_columns() {
+        let dir = run_dir(
+            "success",
+            "epoch,env_steps,eval_return_0,eval_return_1,eval_success_0,eval_success_1\n\
+             1,1000,-50.0,-40.0,0.0,0.1\n\
+             2,2000,-20.0,-30.0,0.4,0.7\n",
+        );
+        let out = run(&[dir.clone()], None, Metric::Success).unwrap();
+        assert_eq!(out, dir.join("success.svg"));
+        let svg = std::fs::read_to_string(&out).unwrap();
+        assert!(svg.contains("evaluation success rate per actor"));
+        assert_eq!(
+            svg.matches("<polyline").count(),
+            3,
+            "two actors and the best"
+        );
+        // Ticks of a rate carry decimals.
+        assert!(svg.contains(">0.12<"), "{svg}");
+        let returns = std::fs::read_to_string(run(&[dir.clone()], None, Metric::Return).unwrap());
+        assert!(returns.unwrap().contains("evaluation return per actor"));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_task_without_success_says_so() {
+        let dir = run_dir(
+            "nosuccess",
+            "epoch,env_steps,eval_return_0,eval_success_0\n1,1000,-50.0,NaN\n",
+        );
+        let e = run(&[dir.clone()], None, Metric::Success)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("must report success"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

@@ -71,6 +71,8 @@ pub struct Learner {
     weights_version: u64,
     eval_epoch: u64,
     eval_reported: Vec<u64>,
+    /// Per actor: (epoch, success rate) of its latest evaluation; NaN for tasks without success.
+    eval_success: Vec<(u64, f64)>,
     pending: Vec<VecDeque<Pending>>,
     dropped_nonfinite: u64,
     dropped_malformed: u64,
@@ -116,7 +118,7 @@ impl Learner {
                     .collect::<Vec<_>>()
                     .join(",")
             };
-            writeln!(metrics, "epoch,env_steps,wall_s,critic_updates,updates_per_s,env_steps_per_s,critic_loss,q_mean,best,{},{},{},{},policy_lag_mean,dropped", per("eval_return"), per("score"), per("alpha"), per("kl_to_best"))?;
+            writeln!(metrics, "epoch,env_steps,wall_s,critic_updates,updates_per_s,env_steps_per_s,critic_loss,q_mean,best,{},{},{},{},policy_lag_mean,dropped,{}", per("eval_return"), per("score"), per("alpha"), per("kl_to_best"), per("eval_success"))?;
         }
         let resumed = match resume {
             Some(dir) => {
@@ -162,6 +164,7 @@ impl Learner {
             weights_version: resumed.as_ref().map_or(1, |s| s.weights_version),
             eval_epoch,
             eval_reported: vec![eval_epoch; k],
+            eval_success: vec![(0, f64::NAN); k],
             pending: (0..k).map(|_| VecDeque::new()).collect(),
             dropped_nonfinite: 0,
             dropped_malformed: 0,
@@ -390,6 +393,7 @@ impl Learner {
                 if r.epoch > self.eval_reported[w] {
                     self.eval_reported[w] = r.epoch;
                     self.ranking.evaluation(w, r.epoch, r.mean_return);
+                    self.eval_success[w] = (r.epoch, r.success_rate);
                     tracing::debug!(
                         worker = w,
                         epoch = r.epoch,
@@ -625,6 +629,13 @@ impl Learner {
                     }
                 })
                 .collect();
+            // Tasks with a success criterion (the assembly task) report the evaluation's success
+            // rate; others leave NaN.
+            let success: Vec<f64> = self
+                .eval_success
+                .iter()
+                .map(|&(epoch, rate)| if epoch >= e { rate } else { f64::NAN })
+                .collect();
             let pad = |v: &[f64]| {
                 if v.len() == self.k {
                     join(v)
@@ -634,7 +645,7 @@ impl Learner {
             };
             writeln!(
                 self.metrics,
-                "{e},{},{wall:.3},{},{:.3},{:.3},{:.6},{:.6},{},{},{},{},{},{:.3},{}",
+                "{e},{},{wall:.3},{},{:.3},{:.3},{:.6},{:.6},{},{},{},{},{},{:.3},{},{}",
                 e * self.cfg.eval.epoch_env_steps,
                 self.selkd.critic_updates,
                 self.selkd.critic_updates as f64 / wall.max(1e-9),
@@ -652,6 +663,7 @@ impl Learner {
                     0.0
                 },
                 self.dropped_nonfinite + self.dropped_malformed,
+                join(&success),
             )?;
             self.metrics.flush()?;
             tracing::info!(
