@@ -4,14 +4,19 @@
 //! `[-1, 1]^A` (scaling to its own actuator range inside), and says whether the episode ended
 //! because of a real terminal state (`terminated`) or a time limit (`truncated`).
 //!
-//! Envs: `pendulum` (Gymnasium `Pendulum-v1`, exact) and `hopper` (Gymnasium `Hopper-v5`'s task
-//! on rapier3d physics instead of MuJoCo). [`physics`] holds the rapier helpers that the
-//! locomotion robots share: world setup, planar root, hinge chains, joint torques and state.
+//! Envs: `pendulum` (Gymnasium `Pendulum-v1`, exact), `hopper` (Gymnasium `Hopper-v5`'s task
+//! on rapier3d physics instead of MuJoCo) and `fpc-assembly` (the paper's 3C assembly task: a
+//! gripper inserts a flexible printed circuit into a connector slot with 0.05 mm clearance,
+//! scored by success rate; [`FpcAssembly`], configured by [`FpcConfig`]). [`physics`] holds the
+//! rapier helpers that the locomotion robots share: world setup, planar root, hinge chains,
+//! joint torques and state.
 
+pub mod fpc_assembly;
 mod hopper;
 mod pendulum;
 pub mod physics;
 
+pub use fpc_assembly::{FpcAssembly, FpcConfig};
 pub use hopper::Hopper;
 pub use pendulum::Pendulum;
 
@@ -62,6 +67,7 @@ type Constructor = fn() -> Box<dyn Env>;
 const REGISTRY: &[(&str, Constructor)] = &[
     ("pendulum", || Box::new(Pendulum::new())),
     ("hopper", || Box::new(Hopper::new())),
+    ("fpc-assembly", || Box::new(FpcAssembly::new())),
 ];
 
 /// The registry names, in order.
