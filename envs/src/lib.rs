@@ -4,14 +4,19 @@
 //! `[-1, 1]^A` (scaling to its own actuator range inside), and says whether the episode ended
 //! because of a real terminal state (`terminated`) or a time limit (`truncated`).
 //!
-//! Envs: `pendulum` (Gymnasium `Pendulum-v1`, exact) and `hopper` (Gymnasium `Hopper-v5`'s task
-//! on rapier3d physics instead of MuJoCo). [`physics`] holds the rapier helpers that the
-//! locomotion robots share: world setup, planar root, hinge chains, joint torques and state.
+//! Envs: `pendulum` (Gymnasium `Pendulum-v1`, exact), `hopper` (Gymnasium `Hopper-v5`'s task
+//! on rapier3d physics instead of MuJoCo) and `fpc-assembly` (the paper's 3C assembly task: a
+//! gripper inserts a flexible printed circuit into a connector slot with 0.05 mm clearance,
+//! scored by success rate; [`FpcAssembly`], configured by [`FpcConfig`]). [`physics`] holds the
+//! rapier helpers that the locomotion robots share: world setup, planar root, hinge chains,
+//! joint torques and state.
 
+pub mod fpc_assembly;
 mod hopper;
 mod pendulum;
 pub mod physics;
 
+pub use fpc_assembly::{FpcAssembly, FpcConfig};
 pub use hopper::Hopper;
 pub use pendulum::{Pendulum, PendulumOptions};
 
@@ -72,6 +77,15 @@ const REGISTRY: &[(&str, Constructor)] = &[
         Ok(Box::new(Pendulum::with_options(&options)))
     }),
     ("hopper", |o| without_options("hopper", o, Hopper::new)),
+    ("fpc-assembly", |o| {
+        let config: FpcConfig = parse_options("fpc-assembly", o)?;
+        Ok(Box::new(FpcAssembly::with_config(config).map_err(
+            |message| EnvError::Options {
+                env: "fpc-assembly".into(),
+                message,
+            },
+        )?))
+    }),
 ];
 
 /// Reads `options` into an env's options struct (its defaults fill what is missing).
@@ -198,6 +212,12 @@ mod tests {
         let e = err("hopper", "g = 1.0");
         assert!(e.contains("takes no options") && e.contains("`g`"), "{e}");
         assert!(!e.contains('\n'));
+        // fpc-assembly's tolerances are options: read, and checked by the env.
+        let e = err("fpc-assembly", "lateral_tol_mm = -0.1");
+        assert!(e.contains("fpc-assembly") && e.contains("lateral_tol_mm"), "{e}");
+        let e = err("fpc-assembly", "slot_widht_mm = 8.1");
+        assert!(e.contains("slot_widht_mm"), "{e}");
+        assert!(make_with("fpc-assembly", &table("lateral_tol_mm = 0.2")).is_ok());
         assert_eq!(
             options_fingerprint(&table("a = 1\nb = 2")),
             options_fingerprint(&table("b = 2\na = 1"))
