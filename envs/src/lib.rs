@@ -214,7 +214,10 @@ mod tests {
         assert!(!e.contains('\n'));
         // fpc-assembly's tolerances are options: read, and checked by the env.
         let e = err("fpc-assembly", "lateral_tol_mm = -0.1");
-        assert!(e.contains("fpc-assembly") && e.contains("lateral_tol_mm"), "{e}");
+        assert!(
+            e.contains("fpc-assembly") && e.contains("lateral_tol_mm"),
+            "{e}"
+        );
         let e = err("fpc-assembly", "slot_widht_mm = 8.1");
         assert!(e.contains("slot_widht_mm"), "{e}");
         assert!(make_with("fpc-assembly", &table("lateral_tol_mm = 0.2")).is_ok());

@@ -142,3 +142,41 @@ fn async_mode_holds_the_update_to_insert_ratio_and_bounds_policy_lag() {
     assert!(column(&h, &rows, "critic_updates").last().unwrap() > &3000.0);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn fpc_assembly_trains_end_to_end_and_reports_success_rates() {
+    // The 3C assembly task through the real processes, with a tightened tolerance from
+    // [env_options]: every evaluation row carries each actor's success rate, and it plots.
+    let dir = temp_dir("fpc");
+    let sets = small_run(&[
+        "run.env=fpc-assembly",
+        "env_options.lateral_tol_mm=0.08",
+        "algo.actors=2",
+        "run.total_env_steps=2000",
+        "eval.episodes=2",
+    ]);
+    let out = run(train(&dir, &sets));
+    assert_success(&out, &dir);
+    let (h, rows) = metrics(&dir);
+    assert_eq!(rows.len(), 2, "one metrics row per epoch");
+    for i in 0..2 {
+        for rate in column(&h, &rows, &format!("eval_success_{i}")) {
+            assert!(
+                rate == 0.0 || rate == 0.5 || rate == 1.0,
+                "success rate of 2 episodes: {rate}"
+            );
+        }
+    }
+    let config = std::fs::read_to_string(dir.join("config.toml")).unwrap();
+    assert!(config.contains("lateral_tol_mm = 0.08"), "{config}");
+    let mut plot = std::process::Command::new(bin("selkd"));
+    plot.arg("plot").arg(&dir).args(["--metric", "success"]);
+    let out = run(plot);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(dir.join("success.svg").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
