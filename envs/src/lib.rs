@@ -5,7 +5,8 @@
 //! because of a real terminal state (`terminated`) or a time limit (`truncated`).
 //!
 //! Envs: `pendulum` (Gymnasium `Pendulum-v1`, exact), `hopper` (Gymnasium `Hopper-v5`'s task
-//! on rapier3d physics instead of MuJoCo) and `fpc-assembly` (the paper's 3C assembly task: a
+//! on rapier3d physics instead of MuJoCo), `humanoid` (Gymnasium `Humanoid-v5`'s task on
+//! rapier3d, [`Humanoid`], observation parts chosen by [`HumanoidOptions`]) and `fpc-assembly` (the paper's 3C assembly task: a
 //! gripper inserts a flexible printed circuit into a connector slot with 0.05 mm clearance,
 //! scored by success rate; [`FpcAssembly`], configured by [`FpcConfig`]). [`physics`] holds the
 //! rapier helpers that the locomotion robots share: world setup, planar root, hinge chains,
@@ -13,11 +14,13 @@
 
 pub mod fpc_assembly;
 mod hopper;
+mod humanoid;
 mod pendulum;
 pub mod physics;
 
 pub use fpc_assembly::{FpcAssembly, FpcConfig};
 pub use hopper::Hopper;
+pub use humanoid::{Humanoid, HumanoidOptions};
 pub use pendulum::{Pendulum, PendulumOptions};
 
 /// What an env is, known before the first reset.
@@ -77,6 +80,10 @@ const REGISTRY: &[(&str, Constructor)] = &[
         Ok(Box::new(Pendulum::with_options(&options)))
     }),
     ("hopper", |o| without_options("hopper", o, Hopper::new)),
+    ("humanoid", |o| {
+        let options: HumanoidOptions = parse_options("humanoid", o)?;
+        Ok(Box::new(Humanoid::with_options(&options)))
+    }),
     ("fpc-assembly", |o| {
         let config: FpcConfig = parse_options("fpc-assembly", o)?;
         Ok(Box::new(FpcAssembly::with_config(config).map_err(
@@ -168,6 +175,7 @@ fn canonical(name: &str) -> String {
     match name.to_ascii_lowercase().as_str() {
         "pendulum-v1" => "pendulum".to_string(),
         "hopper-v5" => "hopper".to_string(),
+        "humanoid-v5" => "humanoid".to_string(),
         other => other.to_string(),
     }
 }

@@ -577,6 +577,96 @@ impl Articulation {
     }
 }
 
+/// The contact wrench on collider `c` from the last rapier step, as `[torque, force]` (the
+/// torque about the point `about`), world frame (N·m, N): what the contacts did to the body
+/// that carries `c`.
+///
+/// Each contact point contributes its normal impulse along the manifold normal and its
+/// friction impulse, over the step's `dt`. Rapier stores the friction impulse of the whole
+/// step as two coordinates in a per-step tangent basis that it does not keep, and the
+/// world-space friction of the last solver iteration (used for warm-starting); the friction
+/// force here takes its size from the former and its direction from the latter, so it is exact
+/// when the friction direction did not turn inside the step. The point is the contact point
+/// on `c`'s side.
+pub fn collider_contact_wrench(w: &PhysicsWorld, c: ColliderHandle, about: Vector) -> [Vector; 2] {
+    let dt = w.integration_parameters.dt;
+    let (mut torque, mut force) = (Vector::ZERO, Vector::ZERO);
+    for pair in w.contact_pairs_with(c) {
+        let first = pair.collider1 == c;
+        let pose = if first {
+            w.colliders[pair.collider1].position()
+        } else {
+            w.colliders[pair.collider2].position()
+        };
+        for m in pair.solver_manifolds() {
+            for p in &m.points {
+                let d = &p.data;
+                let t = d.tangent_impulse.norm();
+                let dir = d.warmstart_tangent_world.normalize_or_zero();
+                // Impulses as applied to collider2: the normal one pushes it along the normal
+                // (from collider1 to collider2); the friction impulses are recorded for
+                // collider1, so collider2 gets their opposite.
+                let on2 = m.data.normal * d.impulse - dir * t;
+                if on2 == Vector::ZERO {
+                    continue;
+                }
+                let f = if first { -on2 } else { on2 } / dt;
+                let x = pose.transform_point(if first { p.local_p1 } else { p.local_p2 });
+                torque += (x - about).cross(f);
+                force += f;
+            }
+        }
+    }
+    [torque, force]
+}
+
+impl Articulation {
+    /// The world-frame velocity of every link: `(angular velocity, linear velocity of the
+    /// link's body origin)`, by forward recursion from the root over the hinges (exact rigid
+    /// kinematics from `qvel` and the current poses, independent of when rapier last wrote the
+    /// rigid bodies' own velocities). For a free root, `qvel`'s linear part is taken as the
+    /// root origin's velocity: rapier moves a free root with its centre of mass, so put the
+    /// root origin at its centre of mass (as the humanoid does) for this to be exact. The
+    /// velocity of a point `x` fixed to link `i` is `v + ω × (x − origin_i)`.
+    pub fn link_velocities(&self, w: &PhysicsWorld) -> Vec<(Vector, Vector)> {
+        let qvel = self.qvel(w);
+        let mut out: Vec<(Vector, Vector)> = Vec::with_capacity(self.bodies.len());
+        let root = match self.root {
+            RootJoint::Planar => (
+                Vector::new(0.0, qvel[2], 0.0),
+                Vector::new(qvel[0], 0.0, qvel[1]),
+            ),
+            RootJoint::Free => {
+                let rot = self.pose(w, 0).rotation;
+                (
+                    rot * Vector::new(qvel[3], qvel[4], qvel[5]),
+                    Vector::new(qvel[0], qvel[1], qvel[2]),
+                )
+            }
+        };
+        out.push(root);
+        let nv_root = self.root.nv();
+        for i in 1..self.bodies.len() {
+            let p = self.parents[i];
+            let (wp, vp) = out[p];
+            let parent_pose = self.pose(w, p);
+            let axis = parent_pose.rotation * self.axes_in_parent[i];
+            let r = self.pose(w, i).translation - parent_pose.translation;
+            out.push((wp + axis * qvel[nv_root + i - 1], vp + wp.cross(r)));
+        }
+        out
+    }
+
+    /// The contact wrench on link `i` (every collider of it), `[torque, force]` with the
+    /// torque about `about`, world frame; see [`collider_contact_wrench`].
+    pub fn link_contact_wrench(&self, w: &PhysicsWorld, i: usize, about: Vector) -> [Vector; 2] {
+        self.colliders[i].iter().fold([Vector::ZERO; 2], |acc, &c| {
+            let [t, f] = collider_contact_wrench(w, c, about);
+            [acc[0] + t, acc[1] + f]
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

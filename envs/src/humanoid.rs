@@ -1,0 +1,831 @@
+//! Gymnasium's `Humanoid-v5` task on rapier3d physics (see [`crate::physics`]): a 3-D biped
+//! with a free-floating torso learns to walk forward without falling.
+//!
+//! Kept from Gymnasium v5 (meaning, not MuJoCo's exact dynamics):
+//! - MuJoCo's `humanoid.xml` geometry in its rest pose (torso origin at z 1.4, the lower waist
+//!   and pelvis each tilted by the XML's 0.23° about y): the same
+//!   capsules and spheres (torso, head, upper waist; lower waist; pelvis; thighs, shins, feet;
+//!   upper arms, forearms, hands), density 1000, so the same 13 body masses (total 42.12 kg,
+//!   MuJoCo's 42.116 kg) plus 6 geom-less connector links of 1 g each (see below).
+//! - The 17 hinges with the XML's axes, ranges, armature, damping and stiffness (springs
+//!   toward 0), in MuJoCo's `qpos` order: abdomen z, y, x; right hip x, z, y, knee; left hip
+//!   x, z, y, knee; right shoulder 1, 2, elbow; left shoulder 1, 2, elbow. A MuJoCo body with
+//!   two or three hinges (lower waist, thighs, upper arms) is a chain of single hinges through
+//!   connector links (rapier cannot take a multibody joint with two free rotations); the
+//!   chain's order is MuJoCo's joint order within the body, so the rotations compose the same.
+//! - Actions (17) in [−1, 1] (clipped; NaN → 0) in MuJoCo's actuator order (abdomen y, z, x,
+//!   …); ctrl = 0.4·a (the XML's ctrl range ±0.4; Gymnasium's action space *is* ±0.4), joint
+//!   torque = gear × ctrl with gears 100 (abdomen, hip x/z), 300 (hip y), 200 (knees), 25
+//!   (arms).
+//! - Control dt 0.015 s (MuJoCo's 0.003 × frame skip 5). Reward = 1.25 · (x of the centre of
+//!   mass over the step) / dt + 5 if healthy − 0.1·‖ctrl‖² − min(5e-7·‖cfrc_ext‖², 10).
+//! - Healthy, as Gymnasium v5 checks it: 1 < `qpos[2]` (the torso origin's height) < 2;
+//!   unhealthy terminates. 1000 steps truncates.
+//! - Reset: the model pose plus U(±1e-2) on every `qpos` (the quaternion is then normalised,
+//!   which MuJoCo does at its first step) and `qvel` entry.
+//! - Observation (348 by default), in MuJoCo's definitions and conventions (free joint `qpos`
+//!   of the torso origin, `qvel` with the angular velocity in the torso frame; per body the
+//!   frame is centred at the whole robot's centre of mass, MuJoCo's `subtree_com` of the root,
+//!   with world axes): `qpos[2:]` (22), `qvel` (23), `cinert` (13 bodies × [Ixx, Iyy, Izz,
+//!   Ixy, Ixz, Iyz, m·dx, m·dy, m·dz, m], the body's inertia about that centre, d its CoM
+//!   offset from it), `cvel` (13 × [ω; velocity of the body's frame at that centre]),
+//!   `qfrc_actuator[6:]` (17: gear × ctrl in joint order) and `cfrc_ext` (13 × [torque about
+//!   that centre; force] of the contacts on the body). [`HumanoidOptions`] drops the last four
+//!   groups like Gymnasium's `include_*_in_observation` (45 values at least).
+//!
+//! Differences, and why:
+//! - The physics is rapier's, not MuJoCo's (soft contacts, RK4): trajectories differ; the
+//!   task's meaning, scales and bands are kept (see the measurements below).
+//! - The torso link's body origin is the torso's centre of mass (rapier moves a free root with
+//!   its centre of mass): `qpos`/`qvel` are converted to and from MuJoCo's torso origin.
+//! - `cfrc_ext`: rapier's contact forces differ from MuJoCo's soft contacts (on landing,
+//!   MuJoCo's peak forces are larger); the friction part takes its direction from rapier's
+//!   last solver iteration ([`crate::physics::collider_contact_wrench`]). Values are from the
+//!   state after the step (MuJoCo's `cinert`/`cvel` are from the step's start: a 3 ms lag).
+//! - The XML's two fixed tendons (hip–knee) have no actuator, limit or spring, so no effect:
+//!   left out.
+//!
+//! A state that goes non-finite (rapier quarantines such bodies) terminates the episode with a
+//! zero observation: the env never emits NaN.
+//!
+//! Measured (this 2-core machine, same sitting; MuJoCo = Gymnasium 1.x `Humanoid-v5`):
+//! MEASUREMENTS
+
+use crate::physics::{
+    add_floor, collider_contact_wrench, new_world, Articulation, Geom, LinkDesc, RootJoint,
+    SimParams,
+};
+use crate::{Env, EnvSpec, Step};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use rapier3d::prelude::*;
+
+const CONTROL_DT: f32 = 0.015;
+/// Physics integration per control step: SIM_DOC
+pub const SIM: SimParams = SimParams {
+    control_dt: CONTROL_DT,
+    substeps: 2,
+    solver_iterations: 3,
+};
+/// Rapier's contact prediction distance, m: contacts are found this far ahead, so a foot
+/// moving at a few m/s in a 7.5 ms step does not sink into the floor before its contact
+/// exists.
+const PREDICTION: f32 = 0.1;
+const INIT_Z: f32 = 1.4;
+const RESET_NOISE: f32 = 1e-2;
+const CTRL_RANGE: f32 = 0.4;
+const FORWARD_WEIGHT: f64 = 1.25;
+const HEALTHY_REWARD: f64 = 5.0;
+const CTRL_COST_WEIGHT: f64 = 0.1;
+const CONTACT_COST_WEIGHT: f64 = 5e-7;
+const CONTACT_COST_MAX: f64 = 10.0;
+const HEALTHY_Z: (f32, f32) = (1.0, 2.0);
+/// MuJoCo's `qpos`: torso position (3), quaternion (4), 17 hinges.
+pub const NQ: usize = 24;
+/// MuJoCo's `qvel`: torso linear (3) and angular (3) velocity, 17 hinges.
+pub const NV: usize = 23;
+const NU: usize = 17;
+const NBODY: usize = 13;
+
+/// Joint (hinge, `qpos[7..]` order) driven by each actuator (action index): MuJoCo's actuator
+/// list starts with abdomen y, then z; the joints with abdomen z, then y.
+const ACT_JOINT: [usize; NU] = [1, 0, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16];
+/// Gear of each actuator, N·m per unit ctrl.
+const GEAR: [f32; NU] = [
+    100.0, 100.0, 100.0, 100.0, 100.0, 300.0, 200.0, 100.0, 100.0, 300.0, 200.0, 25.0, 25.0, 25.0,
+    25.0, 25.0, 25.0,
+];
+
+/// MuJoCo's 13 bodies: name, the link that carries it, and which of the link's geoms are its
+/// own (`None`: all; a foot is a rigid part of its shin link).
+const BODIES: [(&str, usize, Option<usize>); NBODY] = [
+    ("torso", 0, None),
+    ("lwaist", 2, None),
+    ("pelvis", 3, None),
+    ("right_thigh", 6, None),
+    ("right_shin", 7, Some(0)),
+    ("right_foot", 7, Some(1)),
+    ("left_thigh", 10, None),
+    ("left_shin", 11, Some(0)),
+    ("left_foot", 11, Some(1)),
+    ("right_upper_arm", 13, None),
+    ("right_lower_arm", 14, None),
+    ("left_upper_arm", 16, None),
+    ("left_lower_arm", 17, None),
+];
+
+/// Options (the run config's `[env_options]`), Gymnasium's `include_*_in_observation`.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct HumanoidOptions {
+    /// Body inertias about the centre of mass (130 values).
+    pub include_cinert: bool,
+    /// Body velocities at the centre of mass (78 values).
+    pub include_cvel: bool,
+    /// Actuator joint forces (17 values).
+    pub include_qfrc_actuator: bool,
+    /// Contact wrenches on the bodies (78 values).
+    pub include_cfrc_ext: bool,
+}
+
+impl Default for HumanoidOptions {
+    fn default() -> Self {
+        Self {
+            include_cinert: true,
+            include_cvel: true,
+            include_qfrc_actuator: true,
+            include_cfrc_ext: true,
+        }
+    }
+}
+
+impl HumanoidOptions {
+    /// Observation length with these options.
+    pub fn obs_dim(&self) -> usize {
+        let mut n = (NQ - 2) + NV;
+        n += if self.include_cinert { NBODY * 10 } else { 0 };
+        n += if self.include_cvel { NBODY * 6 } else { 0 };
+        n += if self.include_qfrc_actuator { NU } else { 0 };
+        n += if self.include_cfrc_ext { NBODY * 6 } else { 0 };
+        n
+    }
+}
+
+fn deg(d: f32) -> f32 {
+    d.to_radians()
+}
+
+/// One hinge link: armature, damping, stiffness and range (degrees) from the XML.
+#[allow(clippy::too_many_arguments)]
+fn hinge(
+    name: &'static str,
+    parent: usize,
+    anchor: [f32; 3],
+    axis: [f32; 3],
+    range: [f32; 2],
+    armature: f32,
+    damping: f32,
+    stiffness: f32,
+    geoms: Vec<Geom>,
+) -> LinkDesc {
+    LinkDesc {
+        range: Some([deg(range[0]), deg(range[1])]),
+        armature,
+        damping,
+        stiffness,
+        ..LinkDesc::hinge(name, parent, anchor, axis, geoms)
+    }
+}
+
+/// The torso's geoms, world frame of the rest pose.
+fn torso_geoms() -> Vec<Geom> {
+    let z = INIT_Z;
+    vec![
+        Geom::capsule([0.0, -0.07, z], [0.0, 0.07, z], 0.07),
+        Geom::Sphere {
+            c: [0.0, 0.0, z + 0.19],
+            r: 0.09,
+        },
+        Geom::capsule([-0.01, -0.06, z - 0.12], [-0.01, 0.06, z - 0.12], 0.06),
+    ]
+}
+
+/// Centre of the torso's mass, world frame of the rest pose (its geoms' volume-weighted
+/// centres: one density).
+fn torso_com() -> [f32; 3] {
+    let mut c = [0.0f32; 3];
+    let mut total = 0.0;
+    for g in torso_geoms() {
+        let (v, p) = match g {
+            Geom::Capsule { a, b, .. } => (g.volume(), [0, 1, 2].map(|k| 0.5 * (a[k] + b[k]))),
+            Geom::Sphere { c, .. } => (g.volume(), c),
+        };
+        total += v;
+        for k in 0..3 {
+            c[k] += v * p[k];
+        }
+    }
+    c.map(|x| x / total)
+}
+
+/// The humanoid's links in MuJoCo's `humanoid.xml` rest pose (torso origin at z 1.4): link 0
+/// the torso (origin at its centre of mass), then one link per hinge in `qpos` order.
+pub fn links() -> Vec<LinkDesc> {
+    let z0 = INIT_Z;
+    let cap = Geom::capsule;
+    // Lower waist at (−0.01, 0, z0 − 0.26); its abdomen z/y hinges 0.065 above it.
+    let (wx, lw_z) = (-0.01, z0 - 0.26);
+    let abd = [wx, 0.0, lw_z + 0.065];
+    // Pelvis 0.165 below the lower waist; abdomen x 0.1 above the pelvis.
+    let pel_z = lw_z - 0.165;
+    let mut l = vec![LinkDesc::root("torso", torso_com(), torso_geoms())];
+    l.push(hinge(
+        "abdomen_z",
+        0,
+        abd,
+        [0.0, 0.0, 1.0],
+        [-45.0, 45.0],
+        0.02,
+        5.0,
+        20.0,
+        vec![],
+    ));
+    l.push(hinge(
+        "abdomen_y",
+        1,
+        abd,
+        [0.0, 1.0, 0.0],
+        [-75.0, 30.0],
+        0.02,
+        5.0,
+        10.0,
+        vec![cap([wx, -0.06, lw_z], [wx, 0.06, lw_z], 0.06)],
+    ));
+    l.push(hinge(
+        "abdomen_x",
+        2,
+        [wx, 0.0, pel_z + 0.1],
+        [1.0, 0.0, 0.0],
+        [-35.0, 35.0],
+        0.02,
+        5.0,
+        10.0,
+        vec![cap(
+            [wx - 0.02, -0.07, pel_z],
+            [wx - 0.02, 0.07, pel_z],
+            0.09,
+        )],
+    ));
+    // Legs: side s = −1 right, +1 left (mirror in y; the left hip x and z axes are negated in
+    // the XML so that both sides' angles mean the same motion).
+    for (s, names) in [
+        (
+            -1.0f32,
+            ["right_hip_x", "right_hip_z", "right_hip_y", "right_knee"],
+        ),
+        (1.0, ["left_hip_x", "left_hip_z", "left_hip_y", "left_knee"]),
+    ] {
+        let base = l.len();
+        let hip = [wx, 0.1 * s, pel_z - 0.04];
+        let hip_x_axis = [-s, 0.0, 0.0];
+        let hip_z_axis = [0.0, 0.0, -s];
+        // The XML gives the right hip y armature 0.008 and the left 0.01.
+        let hip_y_armature = if s < 0.0 { 0.008 } else { 0.01 };
+        l.push(hinge(
+            names[0],
+            3,
+            hip,
+            hip_x_axis,
+            [-25.0, 5.0],
+            0.01,
+            5.0,
+            10.0,
+            vec![],
+        ));
+        l.push(hinge(
+            names[1],
+            base,
+            hip,
+            hip_z_axis,
+            [-60.0, 35.0],
+            0.01,
+            5.0,
+            10.0,
+            vec![],
+        ));
+        // Thigh: from the hip 0.34 down and 0.01 inward.
+        let knee_pt = [hip[0], hip[1] - 0.01 * s, hip[2]];
+        l.push(hinge(
+            names[2],
+            base + 1,
+            hip,
+            [0.0, 1.0, 0.0],
+            [-110.0, 20.0],
+            hip_y_armature,
+            5.0,
+            20.0,
+            vec![cap(hip, [hip[0], knee_pt[1], hip[2] - 0.34], 0.06)],
+        ));
+        // Shin frame 0.403 below the hip; the knee hinge 0.02 above it; the foot frame 0.45
+        // below the shin's, its sphere 0.1 above that. The XML gives only the left knee a
+        // spring (stiffness 1); both keep the default damping 1.
+        let shin = [hip[0], knee_pt[1], hip[2] - 0.403];
+        let foot_c = [shin[0], shin[1], shin[2] - 0.45 + 0.1];
+        l.push(hinge(
+            names[3],
+            base + 2,
+            [shin[0], shin[1], shin[2] + 0.02],
+            [0.0, -1.0, 0.0],
+            [-160.0, -2.0],
+            0.006,
+            1.0,
+            if s < 0.0 { 0.0 } else { 1.0 },
+            vec![
+                cap(shin, [shin[0], shin[1], shin[2] - 0.3], 0.049),
+                Geom::Sphere {
+                    c: foot_c,
+                    r: 0.075,
+                },
+            ],
+        ));
+    }
+    // Arms: shoulders at (0, ∓0.17, z0 + 0.06); s = −1 right, +1 left. Default damping 1.
+    for (s, names) in [
+        (
+            -1.0f32,
+            ["right_shoulder1", "right_shoulder2", "right_elbow"],
+        ),
+        (1.0, ["left_shoulder1", "left_shoulder2", "left_elbow"]),
+    ] {
+        let base = l.len();
+        let sh = [0.0, 0.17 * s, z0 + 0.06];
+        let range = if s < 0.0 {
+            [-85.0, 60.0]
+        } else {
+            [-60.0, 85.0]
+        };
+        l.push(hinge(
+            names[0],
+            0,
+            sh,
+            [2.0, -s, 1.0],
+            range,
+            0.0068,
+            1.0,
+            1.0,
+            vec![],
+        ));
+        let p = |d: [f32; 3], o: [f32; 3]| [o[0] + d[0], o[1] + s * d[1], o[2] + d[2]];
+        l.push(hinge(
+            names[1],
+            base,
+            sh,
+            [0.0, s, 1.0],
+            range,
+            0.0051,
+            1.0,
+            1.0,
+            vec![cap(sh, p([0.16, 0.16, -0.16], sh), 0.04)],
+        ));
+        let el = p([0.18, 0.18, -0.18], sh);
+        // Right forearm geoms go (+x, +y, +z) from the elbow, the left ones (+x, −y, +z).
+        let f = |d: f32| [el[0] + d, el[1] - s * d, el[2] + d];
+        l.push(hinge(
+            names[2],
+            base + 1,
+            el,
+            [0.0, -1.0, -s],
+            [-90.0, 50.0],
+            0.0028,
+            1.0,
+            0.0,
+            vec![
+                cap(f(0.01), f(0.17), 0.031),
+                Geom::Sphere {
+                    c: f(0.18),
+                    r: 0.04,
+                },
+            ],
+        ));
+    }
+    // MuJoCo tilts the lower waist (about its origin) and, inside it, the pelvis (about its
+    // own) by `quat="1 0 -0.002 0"` each: −0.004 rad about y, which moves the feet ~7 mm
+    // forward. Built upright above, then turned: the pelvis subtree (links 3–11) first, then
+    // the whole lower-waist subtree (links 1–11).
+    let tilt = -2.0 * 0.002f32.atan();
+    for link in &mut l[3..=11] {
+        turn_about_y(link, [wx, 0.0, pel_z], tilt);
+    }
+    for link in &mut l[1..=11] {
+        turn_about_y(link, [wx, 0.0, lw_z], tilt);
+    }
+    l
+}
+
+/// Turns a link's rest-pose description by `angle` about the world y axis through `pivot`.
+fn turn_about_y(l: &mut LinkDesc, pivot: [f32; 3], angle: f32) {
+    let (s, c) = angle.sin_cos();
+    let rot = |v: [f32; 3]| [c * v[0] + s * v[2], v[1], -s * v[0] + c * v[2]];
+    let point = |p: [f32; 3]| {
+        let r = rot([p[0] - pivot[0], p[1] - pivot[1], p[2] - pivot[2]]);
+        [r[0] + pivot[0], r[1] + pivot[1], r[2] + pivot[2]]
+    };
+    l.anchor = point(l.anchor);
+    l.axis = rot(l.axis);
+    for g in &mut l.geoms {
+        *g = match *g {
+            Geom::Capsule { a, b, r } => Geom::capsule(point(a), point(b), r),
+            Geom::Sphere { c, r } => Geom::Sphere { c: point(c), r },
+        };
+    }
+}
+
+/// Mass properties of one MuJoCo body, in its link's frame.
+#[derive(Clone, Copy, Debug)]
+struct BodyInertia {
+    link: usize,
+    mass: f32,
+    /// Centre of mass, link frame.
+    com: Vector,
+    /// Inertia about the centre of mass, link frame.
+    inertia: Matrix,
+}
+
+pub struct Humanoid {
+    spec: EnvSpec,
+    options: HumanoidOptions,
+    sim: SimParams,
+    world: PhysicsWorld,
+    robot: Articulation,
+    bodies: Vec<BodyInertia>,
+    /// MuJoCo's torso origin in the torso link's frame.
+    torso_origin: Vector,
+    /// The last ctrl (for `qfrc_actuator`).
+    ctrl: [f32; NU],
+    t: usize,
+    rng: Pcg64,
+}
+
+impl Default for Humanoid {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+fn build(sim: &SimParams) -> (PhysicsWorld, Articulation) {
+    let mut world = new_world(sim);
+    world.integration_parameters.normalized_prediction_distance = PREDICTION;
+    add_floor(&mut world, 1.0);
+    let robot = Articulation::build(&mut world, RootJoint::Free, &links());
+    (world, robot)
+}
+
+/// The 13 bodies' mass properties, from their colliders.
+fn body_inertias(w: &PhysicsWorld, robot: &Articulation) -> Vec<BodyInertia> {
+    BODIES
+        .iter()
+        .map(|&(_, link, geom)| {
+            let cs = robot.colliders(link);
+            let chosen: Vec<ColliderHandle> = match geom {
+                None => cs.to_vec(),
+                Some(g) => vec![cs[g]],
+            };
+            let mut mp = MassProperties::default();
+            for c in chosen {
+                let col = &w.colliders[c];
+                let local = col.position_wrt_parent().copied().unwrap_or(Pose::IDENTITY);
+                mp += col.mass_properties().transform_by(&local);
+            }
+            BodyInertia {
+                link,
+                mass: mp.mass(),
+                com: mp.local_com,
+                inertia: mp.reconstruct_inertia_matrix(),
+            }
+        })
+        .collect()
+}
+
+impl Humanoid {
+    pub fn new() -> Self {
+        Self::with_options(&HumanoidOptions::default())
+    }
+
+    pub fn with_options(options: &HumanoidOptions) -> Self {
+        Self::with_sim(options, SIM)
+    }
+
+    /// The humanoid with other physics settings (`control_dt` must stay [`SIM`]'s 0.015 s).
+    pub fn with_sim(options: &HumanoidOptions, sim: SimParams) -> Self {
+        assert_eq!(sim.control_dt, CONTROL_DT);
+        let (world, robot) = build(&sim);
+        let bodies = body_inertias(&world, &robot);
+        let com = torso_com();
+        let torso_origin = Vector::new(-com[0], -com[1], INIT_Z - com[2]);
+        Self {
+            spec: EnvSpec {
+                id: "humanoid",
+                obs_dim: options.obs_dim(),
+                act_dim: NU,
+                max_episode_steps: 1000,
+            },
+            options: options.clone(),
+            sim,
+            world,
+            robot,
+            bodies,
+            torso_origin,
+            ctrl: [0.0; NU],
+            t: 0,
+            rng: Pcg64::seed_from_u64(0),
+        }
+    }
+
+    /// Starts an episode from a MuJoCo state (`qpos` of the torso origin, `qvel` with the
+    /// torso's angular velocity in its own frame) in a fresh world.
+    pub fn set_state(&mut self, qpos: &[f32], qvel: &[f32]) -> Vec<f32> {
+        assert!(qpos.len() == NQ && qvel.len() == NV);
+        // A fresh world per episode: no contact or solver cache carries over, so an episode
+        // depends only on its seed and actions.
+        let (mut world, robot) = build(&self.sim);
+        let rot = Rotation::from_xyzw(qpos[4], qpos[5], qpos[6], qpos[3]).normalize();
+        // From the torso origin to the torso's centre of mass (the link origin), world frame.
+        let r = rot * -self.torso_origin;
+        let w_world = rot * Vector::new(qvel[3], qvel[4], qvel[5]);
+        let (mut q, mut v) = (qpos.to_vec(), qvel.to_vec());
+        for k in 0..3 {
+            q[k] = qpos[k] + r[k];
+        }
+        let v_com = Vector::new(qvel[0], qvel[1], qvel[2]) + w_world.cross(r);
+        v[..3].copy_from_slice(&[v_com.x, v_com.y, v_com.z]);
+        robot.set_state(&mut world, &q, &v);
+        self.world = world;
+        self.robot = robot;
+        self.ctrl = [0.0; NU];
+        self.t = 0;
+        self.obs()
+    }
+
+    /// MuJoCo's `qpos` (torso origin position and orientation, hinge angles).
+    pub fn qpos(&self) -> Vec<f32> {
+        let mut q = self.robot.qpos(&self.world);
+        let rot = self.robot.pose(&self.world, 0).rotation;
+        let o = rot * self.torso_origin;
+        for k in 0..3 {
+            q[k] += o[k];
+        }
+        q
+    }
+
+    /// MuJoCo's `qvel` (torso origin velocity, world frame; torso angular velocity, torso
+    /// frame; hinge rates).
+    pub fn qvel(&self) -> Vec<f32> {
+        let mut v = self.robot.qvel(&self.world);
+        let rot = self.robot.pose(&self.world, 0).rotation;
+        let w_world = rot * Vector::new(v[3], v[4], v[5]);
+        let lin = Vector::new(v[0], v[1], v[2]) + w_world.cross(rot * self.torso_origin);
+        v[..3].copy_from_slice(&[lin.x, lin.y, lin.z]);
+        v
+    }
+
+    /// Total mass of the 13 bodies (MuJoCo's `body_mass.sum()`), kg.
+    pub fn mass(&self) -> f32 {
+        self.bodies.iter().map(|b| b.mass).sum()
+    }
+
+    /// Mass of each of the 13 bodies, kg (MuJoCo's order).
+    pub fn body_masses(&self) -> Vec<(&'static str, f32)> {
+        BODIES
+            .iter()
+            .zip(&self.bodies)
+            .map(|(b, i)| (b.0, i.mass))
+            .collect()
+    }
+
+    /// Each body's world centre of mass, and the whole robot's.
+    fn coms(&self) -> (Vec<Vector>, Vector) {
+        let xi: Vec<Vector> = self
+            .bodies
+            .iter()
+            .map(|b| self.robot.pose(&self.world, b.link).transform_point(b.com))
+            .collect();
+        let total = self.mass();
+        let c = xi
+            .iter()
+            .zip(&self.bodies)
+            .fold(Vector::ZERO, |acc, (x, b)| acc + *x * b.mass)
+            / total;
+        (xi, c)
+    }
+
+    /// The centre of mass of the robot, world frame (Gymnasium's `mass_center`).
+    pub fn center_of_mass(&self) -> Vector {
+        self.coms().1
+    }
+
+    /// `cfrc_ext` of the 13 bodies: `[torque about the centre of mass; force]` each.
+    pub fn cfrc_ext(&self) -> Vec<[f32; 6]> {
+        let c = self.center_of_mass();
+        BODIES
+            .iter()
+            .map(|&(_, link, geom)| {
+                let [t, f] = match geom {
+                    None => self.robot.link_contact_wrench(&self.world, link, c),
+                    Some(g) => {
+                        collider_contact_wrench(&self.world, self.robot.colliders(link)[g], c)
+                    }
+                };
+                [t.x, t.y, t.z, f.x, f.y, f.z]
+            })
+            .collect()
+    }
+
+    fn obs(&self) -> Vec<f32> {
+        let mut o = Vec::with_capacity(self.spec.obs_dim);
+        o.extend_from_slice(&self.qpos()[2..]);
+        o.extend(self.qvel());
+        let (xi, c) = self.coms();
+        if self.options.include_cinert {
+            for (b, x) in self.bodies.iter().zip(&xi) {
+                let rot = Matrix::from_quat(self.robot.pose(&self.world, b.link).rotation);
+                let i = rot * b.inertia * rot.transpose();
+                let d = *x - c;
+                let m = b.mass;
+                o.extend([
+                    i.x_axis.x + m * (d.y * d.y + d.z * d.z),
+                    i.y_axis.y + m * (d.x * d.x + d.z * d.z),
+                    i.z_axis.z + m * (d.x * d.x + d.y * d.y),
+                    i.y_axis.x - m * d.x * d.y,
+                    i.z_axis.x - m * d.x * d.z,
+                    i.z_axis.y - m * d.y * d.z,
+                    m * d.x,
+                    m * d.y,
+                    m * d.z,
+                    m,
+                ]);
+            }
+        }
+        if self.options.include_cvel {
+            let vels = self.robot.link_velocities(&self.world);
+            for b in &self.bodies {
+                let (w, v) = vels[b.link];
+                let lin = v + w.cross(c - self.robot.pose(&self.world, b.link).translation);
+                o.extend([w.x, w.y, w.z, lin.x, lin.y, lin.z]);
+            }
+        }
+        if self.options.include_qfrc_actuator {
+            let mut f = [0.0f32; NU];
+            for k in 0..NU {
+                f[ACT_JOINT[k]] = GEAR[k] * self.ctrl[k];
+            }
+            o.extend(f);
+        }
+        if self.options.include_cfrc_ext {
+            for w in self.cfrc_ext() {
+                o.extend(w);
+            }
+        }
+        debug_assert_eq!(o.len(), self.spec.obs_dim);
+        o
+    }
+
+    fn healthy(q: &[f32]) -> bool {
+        q[2] > HEALTHY_Z.0 && q[2] < HEALTHY_Z.1
+    }
+}
+
+impl Env for Humanoid {
+    fn spec(&self) -> &EnvSpec {
+        &self.spec
+    }
+
+    fn reset(&mut self, seed: Option<u64>) -> Vec<f32> {
+        if let Some(s) = seed {
+            self.rng = Pcg64::seed_from_u64(s);
+        }
+        let mut q = [0.0f32; NQ];
+        q[2] = INIT_Z;
+        q[3] = 1.0;
+        let mut v = [0.0f32; NV];
+        for x in q.iter_mut() {
+            *x += self.rng.gen_range(-RESET_NOISE..RESET_NOISE);
+        }
+        for x in v.iter_mut() {
+            *x += self.rng.gen_range(-RESET_NOISE..RESET_NOISE);
+        }
+        self.set_state(&q, &v)
+    }
+
+    fn step(&mut self, action: &[f32]) -> Step {
+        let mut ctrl = [0.0f32; NU];
+        for (c, x) in ctrl.iter_mut().zip(action) {
+            // NaN actions act as zero torque rather than poisoning the physics.
+            *c = CTRL_RANGE * if x.is_nan() { 0.0 } else { x.clamp(-1.0, 1.0) };
+        }
+        self.ctrl = ctrl;
+        let mut torques = [0.0f32; NU];
+        for k in 0..NU {
+            torques[ACT_JOINT[k]] = GEAR[k] * ctrl[k];
+        }
+        let x_before = self.center_of_mass().x;
+        for _ in 0..self.sim.substeps {
+            self.robot.apply_joint_torques(&mut self.world, &torques);
+            self.world.step();
+        }
+        self.t += 1;
+        let truncated = self.t >= self.spec.max_episode_steps;
+        let ctrl_cost = CTRL_COST_WEIGHT * ctrl.iter().map(|x| (*x as f64).powi(2)).sum::<f64>();
+        if !self.robot.is_sane(&self.world) {
+            return Step {
+                obs: vec![0.0; self.spec.obs_dim],
+                reward: -ctrl_cost,
+                terminated: true,
+                truncated,
+                success: None,
+            };
+        }
+        let q = self.qpos();
+        let x_velocity = (self.center_of_mass().x as f64 - x_before as f64) / CONTROL_DT as f64;
+        let contact: f64 = self
+            .cfrc_ext()
+            .iter()
+            .flatten()
+            .map(|x| (*x as f64).powi(2))
+            .sum();
+        let contact_cost = (CONTACT_COST_WEIGHT * contact).min(CONTACT_COST_MAX);
+        let healthy = Self::healthy(&q);
+        let reward = FORWARD_WEIGHT * x_velocity + if healthy { HEALTHY_REWARD } else { 0.0 }
+            - ctrl_cost
+            - contact_cost;
+        let obs = self.obs();
+        if !obs.iter().all(|x| x.is_finite()) || !reward.is_finite() {
+            return Step {
+                obs: vec![0.0; self.spec.obs_dim],
+                reward: -ctrl_cost,
+                terminated: true,
+                truncated,
+                success: None,
+            };
+        }
+        Step {
+            obs,
+            reward,
+            terminated: !healthy,
+            truncated,
+            success: None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn random_actions(seed: u64, n: usize) -> Vec<[f32; NU]> {
+        let mut rng = Pcg64::seed_from_u64(seed);
+        (0..n)
+            .map(|_| [0; NU].map(|_| rng.gen_range(-1.0f32..1.0)))
+            .collect()
+    }
+
+    /// Runs one episode of `policy` (env, step index → action) from `seed`; returns (return,
+    /// steps, terminated).
+    fn episode(
+        env: &mut Humanoid,
+        seed: u64,
+        mut policy: impl FnMut(&Humanoid, usize) -> [f32; NU],
+    ) -> (f64, usize, bool) {
+        env.reset(Some(seed));
+        let mut ret = 0.0;
+        for t in 0..env.spec().max_episode_steps {
+            let a = policy(env, t);
+            let s = env.step(&a);
+            assert!(s.obs.iter().all(|x| x.is_finite()) && s.reward.is_finite());
+            ret += s.reward;
+            if s.terminated || s.truncated {
+                return (ret, t + 1, s.terminated);
+            }
+        }
+        unreachable!("the time limit truncates at 1000 steps")
+    }
+
+    #[test]
+    #[ignore]
+    fn explore() {
+        let mut env = Humanoid::new();
+        println!("masses {:?} total {}", env.body_masses(), env.mass());
+        let mut q = [0.0f32; NQ];
+        q[2] = INIT_Z;
+        q[3] = 1.0;
+        let o = env.set_state(&q, &[0.0; NV]);
+        println!("com {:?}", env.center_of_mass());
+        for b in 0..3 {
+            println!("cinert {:?}", &o[45 + 10 * b..55 + 10 * b]);
+        }
+        let mut lens = vec![];
+        for seed in 0..30 {
+            let acts = random_actions(seed + 100, 1000);
+            lens.push(episode(&mut env, seed, |_, t| acts[t]).1);
+        }
+        lens.sort();
+        println!(
+            "random {lens:?} mean {}",
+            lens.iter().sum::<usize>() as f32 / 30.0
+        );
+        let zero: Vec<_> = (0..10)
+            .map(|s| episode(&mut env, s, |_, _| [0.0; NU]))
+            .collect();
+        println!("zero {zero:?}");
+        env.reset(Some(0));
+        for k in 0..25 {
+            env.step(&[0.0; NU]);
+            let f = env.cfrc_ext();
+            let fz: f32 = f.iter().map(|w| w[5]).sum();
+            println!(
+                "{k} z {} fz {fz} weight {}",
+                env.qpos()[2],
+                env.mass() * 9.81
+            );
+        }
+    }
+}
