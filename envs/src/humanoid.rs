@@ -48,8 +48,19 @@
 //! A state that goes non-finite (rapier quarantines such bodies) terminates the episode with a
 //! zero observation: the env never emits NaN.
 //!
-//! Measured (this 2-core machine, same sitting; MuJoCo = Gymnasium 1.x `Humanoid-v5`):
-//! MEASUREMENTS
+//! Measured against MuJoCo (mujoco 3.x with Gymnasium 1.x's `Humanoid-v5`, same machine):
+//! - Kinematics: for the same state, `qpos`/`qvel` round trips, `cinert`, `cvel` and the
+//!   centre of mass equal MuJoCo's to 1e-4 (`tests::kinematic_observation_terms_match_mujoco`);
+//!   the 13 body masses equal MuJoCo's (42.116 kg in all).
+//! - Episode lengths (steps of 15 ms until termination), 30 seeds: random actions 17–43, mean
+//!   23.7 (MuJoCo 17–40, mean 24.8); zero action 38–40 (MuJoCo 40–41, return ~190 vs ~197);
+//!   a PD controller holding the rest posture (gains 100 N·m/rad, 5 N·m·s/rad) 79–118 steps
+//!   (MuJoCo 79–107), both toppling slowly forward, the centre of mass ~0.55 m ahead (MuJoCo
+//!   0.53–0.57 m): the stance is held, not balanced; no controller here walks.
+//! - Contact: after the ~0.1 m drop of the reset pose, the feet land at step 9 (MuJoCo: between
+//!   steps 5 and 10) and carry the weight (413 N); MuJoCo's soft contacts spike higher on
+//!   landing (1.3 kN vs ~0.43 kN here), so the contact cost differs in transients.
+//! - Speed: SPEED
 
 use crate::physics::{
     add_floor, collider_contact_wrench, new_world, Articulation, Geom, LinkDesc, RootJoint,
