@@ -34,7 +34,8 @@
 //!   groups like Gymnasium's `include_*_in_observation` (45 values at least).
 //!
 //! Differences, and why:
-//! - The physics is rapier's, not MuJoCo's (soft contacts, RK4): trajectories differ; the
+//! - The physics is rapier's ([`SIM`]: 2 steps of 7.5 ms per control step; contact
+//!   prediction 0.1 m), not MuJoCo's (soft contacts, RK4 at 3 ms): trajectories differ; the
 //!   task's meaning, scales and bands are kept (see the measurements below).
 //! - The torso link's body origin is the torso's centre of mass (rapier moves a free root with
 //!   its centre of mass): `qpos`/`qvel` are converted to and from MuJoCo's torso origin.
@@ -58,8 +59,10 @@
 //!   (MuJoCo 79–107), both toppling slowly forward, the centre of mass 0.52–0.56 m ahead
 //!   (MuJoCo 0.53–0.57 m): the stance is held, not balanced; no controller here walks.
 //! - Contact: after the ~0.1 m drop of the reset pose, the feet land at step 9 (MuJoCo: between
-//!   steps 5 and 10) and carry the weight (413 N); MuJoCo's soft contacts spike higher on
-//!   landing (1.3 kN vs ~0.43 kN here), so the contact cost differs in transients.
+//!   steps 5 and 10) with ~0.43 kN, where MuJoCo's soft contacts spike to 1.3 kN, so the
+//!   contact cost differs in transients; while the PD stance holds, the vertical contact
+//!   force averages the weight (413 N) within 10%, and each step's vertical contact force
+//!   matches the robot's momentum change (`tests::cfrc_ext_is_zero_in_the_air_and_carries_the_weight`).
 //! - Speed (`selkd bench env humanoid`, random actions, one thread, resets included) on the
 //!   shared 2-core machine under load (load average ~7), same sitting: ours 870–1010 env
 //!   steps/s, Gymnasium `Humanoid-v5` 580–730 steps/s (1.9k unloaded earlier that day).
