@@ -386,8 +386,11 @@ mod tests {
         assert!(obs[0] > -0.7 && obs[1].cos() < 0.0, "{obs:?}");
     }
 
-    /// An open-loop sine gait: a_j = sin(2π f t + φ_j) (amplitude 1), found by a short random
-    /// search on this env (seeds 100–101); [f Hz, then φ_j for bthigh … ffoot].
+    /// An open-loop sine gait: a_j = sin(2π f t + φ_j) (amplitude 1), found by a short search
+    /// run once on this env (60 random samples then hill-climbing on the forward progress of
+    /// seeds 100–101, 200 s); [f Hz, then φ_j for bthigh … ffoot]. It runs ~530 m in 1000 steps
+    /// here; the same gait goes ~90 m *backward* in Gymnasium's MuJoCo HalfCheetah-v5, and the
+    /// same search run on MuJoCo found at best 67 m: open-loop gaits exploit the engine.
     const GAIT: [f32; 7] = [
         4.22699, -2.7452831, 1.0884578, -1.0541096, 0.44694817, -2.9582198, 1.9110123,
     ];
@@ -403,68 +406,10 @@ mod tests {
         for seed in 0..2 {
             let still = episode(&mut env, seed, |_, _| [0.0; NA]);
             let moving = episode(&mut env, seed, |_, t| gait(&GAIT, t));
-            eprintln!("cheetah seed {seed}: gait {moving} m, still {still} m");
             assert!(
                 moving > still + 50.0,
                 "gait {moving} m vs standing {still} m"
             );
         }
-    }
-
-    #[test]
-    #[ignore]
-    fn search_gait() {
-        let mut env = HalfCheetah::new();
-        let mut rng = Pcg64::seed_from_u64(5);
-        let score = |env: &mut HalfCheetah, p: &[f32; 7]| {
-            (100..102)
-                .map(|seed| episode(env, seed, |_, t| gait(p, t)))
-                .sum::<f32>()
-                / 2.0
-        };
-        let t0 = std::time::Instant::now();
-        let mut best = GAIT;
-        let mut best_s = f32::MIN;
-        for _ in 0..60 {
-            let mut p = [0.0; 7];
-            p[0] = rng.gen_range(1.0..4.0);
-            for x in &mut p[1..] {
-                *x = rng.gen_range(-3.2..3.2);
-            }
-            let s = score(&mut env, &p);
-            if s > best_s {
-                (best, best_s) = (p, s);
-                eprintln!("random {best_s:.1} {best:?}");
-            }
-        }
-        while t0.elapsed().as_secs() < 200 {
-            let mut p = best;
-            p[0] += 0.2 * rng.gen_range(-1.0f32..1.0);
-            for x in &mut p[1..] {
-                *x += 0.5 * rng.gen_range(-1.0f32..1.0);
-            }
-            let s = score(&mut env, &p);
-            if s > best_s {
-                (best, best_s) = (p, s);
-                eprintln!("climb {best_s:.1} {best:?}");
-            }
-        }
-        eprintln!("BEST {best_s:.1} {best:?}");
-    }
-
-    /// Exploration: prints forward progress of random and sine gaits (run with --ignored).
-    #[test]
-    #[ignore]
-    fn explore() {
-        let mut env = HalfCheetah::new();
-        let q = env.qpos();
-        eprintln!("rest qpos {q:?} mass {}", env.mass());
-        for seed in 0..5 {
-            let acts = random_actions(seed + 100, 1000);
-            let d = episode(&mut env, seed, |_, t| acts[t]);
-            eprintln!("random seed {seed}: {d} m");
-        }
-        let still = episode(&mut env, 0, |_, _| [0.0; NA]);
-        eprintln!("still: {still} m, z {:?}", env.qpos());
     }
 }
