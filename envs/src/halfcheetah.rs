@@ -33,8 +33,9 @@
 //!
 //! Speed, random actions on one thread, same sitting, on the 2-core dev machine under heavy
 //! load from other jobs (load average ~10, so both numbers are low and noisy): `selkd bench env
-//! halfcheetah` 2043 env steps/s; Gymnasium's `HalfCheetah-v5` (MuJoCo 3) 3774 steps/s. MuJoCo
-//! is faster here: the cheetah's 0.05 s control step takes 5 rapier steps. Fewer, longer steps
+//! halfcheetah` 2043 env steps/s vs Gymnasium's `HalfCheetah-v5` (MuJoCo 3) 3774 steps/s; a
+//! second sitting (load ~7) 3552 vs 2624: about even, MuJoCo often ahead (the cheetah's 0.05 s
+//! control step takes 5 rapier steps). Fewer, longer steps
 //! (4×, 3×, 2× per control step) stayed stable and above the floor but were not clearly faster
 //! in that loaded sitting, and they change the dynamics (the sine gait below went 405, 195,
 //! 136 m), so the MuJoCo-like 5 × 10 ms is kept. An earlier, quieter sitting: ours ~8k vs

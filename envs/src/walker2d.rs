@@ -26,8 +26,9 @@
 //!
 //! Speed, random actions and resets on one thread, same sitting, on the 2-core dev machine
 //! under heavy load from other jobs (load average ~10, so both numbers are low and noisy):
-//! `selkd bench env walker2d` 2951 env steps/s; Gymnasium's `Walker2d-v5` (MuJoCo 3, RK4) 1606
-//! steps/s. An earlier, quieter sitting: ours ~8k vs MuJoCo 3.4k–7.5k.
+//! `selkd bench env walker2d` 2951 env steps/s vs Gymnasium's `Walker2d-v5` (MuJoCo 3, RK4)
+//! 1606 steps/s; a second sitting (load ~7) 3794 vs 1808. An earlier, quieter sitting: ours
+//! ~8k vs MuJoCo 3.4k–7.5k.
 //!
 //! A state that goes non-finite (rapier quarantines such bodies) terminates the episode with a
 //! zero observation: the env never emits NaN.
