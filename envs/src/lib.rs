@@ -4,24 +4,29 @@
 //! `[-1, 1]^A` (scaling to its own actuator range inside), and says whether the episode ended
 //! because of a real terminal state (`terminated`) or a time limit (`truncated`).
 //!
-//! Envs: `pendulum` (Gymnasium `Pendulum-v1`, exact), `hopper` (Gymnasium `Hopper-v5`'s task
-//! on rapier3d physics instead of MuJoCo), `humanoid` (Gymnasium `Humanoid-v5`'s task on
-//! rapier3d, [`Humanoid`], observation parts chosen by [`HumanoidOptions`]) and `fpc-assembly` (the paper's 3C assembly task: a
+//! Envs: `pendulum` (Gymnasium `Pendulum-v1`, exact); `hopper`, `walker2d`, `halfcheetah`,
+//! `ant` / `ant-contacts` and `humanoid` (Gymnasium v5's MuJoCo locomotion tasks on rapier3d
+//! physics instead of MuJoCo; [`Humanoid`]'s observation parts are chosen by
+//! [`HumanoidOptions`]); and `fpc-assembly` (the paper's 3C assembly task: a
 //! gripper inserts a flexible printed circuit into a connector slot with 0.05 mm clearance,
 //! scored by success rate; [`FpcAssembly`], configured by [`FpcConfig`]). [`physics`] holds the
 //! rapier helpers that the locomotion robots share: world setup, planar root, hinge chains,
 //! joint torques and state.
 
 pub mod fpc_assembly;
+mod halfcheetah;
 mod hopper;
 mod humanoid;
 mod pendulum;
 pub mod physics;
+mod walker2d;
 
 pub use fpc_assembly::{FpcAssembly, FpcConfig};
+pub use halfcheetah::HalfCheetah;
 pub use hopper::Hopper;
 pub use humanoid::{Humanoid, HumanoidOptions};
 pub use pendulum::{Pendulum, PendulumOptions};
+pub use walker2d::Walker2d;
 
 /// What an env is, known before the first reset.
 #[derive(Clone, Debug, PartialEq)]
@@ -80,6 +85,12 @@ const REGISTRY: &[(&str, Constructor)] = &[
         Ok(Box::new(Pendulum::with_options(&options)))
     }),
     ("hopper", |o| without_options("hopper", o, Hopper::new)),
+    ("walker2d", |o| {
+        without_options("walker2d", o, Walker2d::new)
+    }),
+    ("halfcheetah", |o| {
+        without_options("halfcheetah", o, HalfCheetah::new)
+    }),
     ("humanoid", |o| {
         let options: HumanoidOptions = parse_options("humanoid", o)?;
         Ok(Box::new(Humanoid::with_options(&options)))
@@ -175,6 +186,8 @@ fn canonical(name: &str) -> String {
     match name.to_ascii_lowercase().as_str() {
         "pendulum-v1" => "pendulum".to_string(),
         "hopper-v5" => "hopper".to_string(),
+        "walker2d-v5" => "walker2d".to_string(),
+        "halfcheetah-v5" => "halfcheetah".to_string(),
         "humanoid-v5" => "humanoid".to_string(),
         other => other.to_string(),
     }

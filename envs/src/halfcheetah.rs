@@ -1,0 +1,430 @@
+//! Gymnasium's `HalfCheetah-v5` task on rapier3d physics (see [`crate::physics`]): a planar
+//! two-legged "cheetah" learns to run forward. It never falls over in the episode's sense (no
+//! termination, only the time limit), so it measures pure speed of the learned gait.
+//!
+//! Kept from Gymnasium v5 (meaning, not MuJoCo's exact dynamics):
+//! - MuJoCo's `half_cheetah.xml` geometry, all capsules of radius 0.046: the torso from x −0.5 to
+//!   0.5 and the head (half-length 0.15 at (0.6, 0.1), tilted 0.87 rad about Y) on the root
+//!   body at z 0.7; back thigh, shin, foot and front thigh, shin, foot, each tilted as in the
+//!   XML (`axisangle` about Y). The XML's `settotalmass="14"`: the geoms' volumes share 14 kg.
+//! - Hinges about +Y with the XML's ranges, springs (`stiffness` 240/180/120/180/120/60 N·m/rad
+//!   toward 0, implicit), damping (6/4.5/3/4.5/3/1.5) and armature 0.1. The root is `rootx`,
+//!   `rootz`, `rooty` about the torso origin; as in MuJoCo, `rootz` (`qpos[1]`) is the height
+//!   relative to the model's 0.7 m (the XML gives it no `ref`), so it is 0 at rest.
+//! - Friction 0.4 on every geom and the floor (the XML's default).
+//! - Observation (17): `qpos[1:]` = [z − 0.7, pitch, 6 joint angles] and `qvel` = [ẋ, ż,
+//!   pitch rate, 6 joint velocities], unclipped.
+//! - Action (6) in [−1, 1] (clipped; bthigh, bshin, bfoot, fthigh, fshin, ffoot), × gears
+//!   120/90/60/120/60/30 → joint torque, N·m.
+//! - Control dt 0.05 s. Reward = ẋ (torso x over the step / dt) − 0.1·‖a‖². Never terminates;
+//!   1000 steps truncates.
+//! - Reset: the model pose (joints at 0, the feet ~8 cm above the floor) plus U(±0.1) on every
+//!   `qpos` entry and 0.1·N(0, 1) on every `qvel` entry.
+//!
+//! Differs: rapier's hard contacts and joint limits instead of MuJoCo's soft ones (the XML's
+//! limits are very soft, `solimplimit="0 .8 .03"`), and rapier's integrator (see [`SIM`]).
+//!
+//! Random actions: the cheetah drifts backward, as in MuJoCo but further: over 1000 random
+//! steps, mean −11.9 m here (3 seeds, −7 to −15 m over 5) vs −3.9 m in Gymnasium's
+//! `HalfCheetah-v5` (10 seeds, −9.2 to +0.8 m). Open-loop gaits fare much better here than in
+//! MuJoCo (see the test `sine_gait_beats_standing_still`): rapier's hard contacts and joint
+//! limits push off more effectively than MuJoCo's soft ones, so rewards are not comparable
+//! with MuJoCo's numbers.
+//!
+//! Speed, random actions on one thread, same sitting, on the 2-core dev machine under heavy
+//! load from other jobs (load average ~10, so both numbers are low and noisy): `selkd bench env
+//! halfcheetah` 2043 env steps/s vs Gymnasium's `HalfCheetah-v5` (MuJoCo 3) 3774 steps/s; a
+//! second sitting (load ~7) 3552 vs 2624: about even, MuJoCo often ahead (the cheetah's 0.05 s
+//! control step takes 5 rapier steps). Fewer, longer steps
+//! (4×, 3×, 2× per control step) stayed stable and above the floor but were not clearly faster
+//! in that loaded sitting, and they change the dynamics (the sine gait below went 405, 195,
+//! 136 m), so the MuJoCo-like 5 × 10 ms is kept. An earlier, quieter sitting: ours ~8k vs
+//! MuJoCo 7k–19k.
+//!
+//! A state that goes non-finite (rapier quarantines such bodies) terminates the episode with a
+//! zero observation: the env never emits NaN (the only termination).
+
+use crate::physics::{
+    add_floor, new_world, set_total_mass, Articulation, Geom, LinkDesc, RootJoint, SimParams,
+};
+use crate::{Env, EnvSpec, Step};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use rapier3d::prelude::PhysicsWorld;
+
+const GEARS: [f32; NA] = [120.0, 90.0, 60.0, 120.0, 60.0, 30.0];
+const CONTROL_DT: f32 = 0.05;
+/// Physics integration per control step: 5 rapier steps of 10 ms (MuJoCo's timestep and frame
+/// skip) with 1 solver iteration each.
+pub const SIM: SimParams = SimParams {
+    control_dt: CONTROL_DT,
+    substeps: 5,
+    solver_iterations: 1,
+};
+/// Rapier's contact prediction distance, m (its default is 2 cm): the cheetah's feet move
+/// fast against 10 ms steps, and contacts found only once a foot is already inside the floor
+/// let it tunnel and skid.
+const PREDICTION_DISTANCE: f32 = 0.1;
+const INIT_Z: f32 = 0.7;
+const RESET_QPOS_NOISE: f32 = 0.1;
+const RESET_QVEL_STD: f32 = 0.1;
+const CTRL_COST_WEIGHT: f64 = 0.1;
+const TOTAL_MASS: f32 = 14.0;
+const FRICTION: f32 = 0.4;
+const RADIUS: f32 = 0.046;
+const NQ: usize = 9;
+const NA: usize = 6;
+const OBS_DIM: usize = 17;
+
+/// The cheetah's links, MuJoCo's `half_cheetah.xml` in its rest pose: the torso (with the head),
+/// then bthigh, bshin, bfoot, fthigh, fshin, ffoot.
+pub fn links() -> Vec<LinkDesc> {
+    // A capsule as the XML gives it: centre (x, z) relative to the body origin `o`, tilted by
+    // `angle` about +Y from the Z axis, half-length `half`.
+    let tilted = |o: [f32; 3], (x, z): (f32, f32), angle: f32, half: f32| {
+        let (s, c) = angle.sin_cos();
+        let centre = [o[0] + x, 0.0, o[2] + z];
+        Geom::capsule(
+            [centre[0] - half * s, 0.0, centre[2] - half * c],
+            [centre[0] + half * s, 0.0, centre[2] + half * c],
+            RADIUS,
+        )
+    };
+    let torso = [0.0, 0.0, INIT_Z];
+    let mut links = vec![LinkDesc {
+        friction: FRICTION,
+        ..LinkDesc::root(
+            "torso",
+            torso,
+            vec![
+                Geom::capsule([-0.5, 0.0, INIT_Z], [0.5, 0.0, INIT_Z], RADIUS),
+                tilted(torso, (0.6, 0.1), 0.87, 0.15),
+            ],
+        )
+    }];
+    // (name, parent, body offset from the parent's origin (x, z), geom centre (x, z), geom
+    // tilt, half-length, range, stiffness, damping), as in the XML.
+    type Body = (
+        &'static str,
+        usize,
+        (f32, f32),
+        (f32, f32),
+        f32,
+        f32,
+        [f32; 2],
+        f32,
+        f32,
+    );
+    #[rustfmt::skip]
+    let bodies: [Body; NA] = [
+        ("bthigh", 0, (-0.5, 0.0), (0.1, -0.13), -3.8, 0.145, [-0.52, 1.05], 240.0, 6.0),
+        ("bshin", 1, (0.16, -0.25), (-0.14, -0.07), -2.03, 0.15, [-0.785, 0.785], 180.0, 4.5),
+        ("bfoot", 2, (-0.28, -0.14), (0.03, -0.097), -0.27, 0.094, [-0.4, 0.785], 120.0, 3.0),
+        ("fthigh", 0, (0.5, 0.0), (-0.07, -0.12), 0.52, 0.133, [-1.0, 0.7], 180.0, 4.5),
+        ("fshin", 4, (-0.14, -0.24), (0.065, -0.09), -0.6, 0.106, [-1.2, 0.87], 120.0, 3.0),
+        ("ffoot", 5, (0.13, -0.18), (0.045, -0.07), -0.6, 0.07, [-0.5, 0.5], 60.0, 1.5),
+    ];
+    for (name, parent, (bx, bz), centre, angle, half, range, stiffness, damping) in bodies {
+        let p = links[parent].anchor;
+        let o = [p[0] + bx, 0.0, p[2] + bz];
+        links.push(LinkDesc {
+            range: Some(range),
+            friction: FRICTION,
+            armature: 0.1,
+            damping,
+            stiffness,
+            ..LinkDesc::hinge(
+                name,
+                parent,
+                o,
+                [0.0, 1.0, 0.0],
+                vec![tilted(o, centre, angle, half)],
+            )
+        });
+    }
+    set_total_mass(&mut links, TOTAL_MASS);
+    links
+}
+
+pub struct HalfCheetah {
+    spec: EnvSpec,
+    sim: SimParams,
+    world: PhysicsWorld,
+    robot: Articulation,
+    t: usize,
+    rng: Pcg64,
+}
+
+impl Default for HalfCheetah {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+fn build(sim: &SimParams) -> (PhysicsWorld, Articulation) {
+    let mut world = new_world(sim);
+    world.integration_parameters.normalized_prediction_distance = PREDICTION_DISTANCE;
+    add_floor(&mut world, FRICTION);
+    let robot = Articulation::build(&mut world, RootJoint::Planar, &links());
+    (world, robot)
+}
+
+impl HalfCheetah {
+    pub fn new() -> Self {
+        Self::with_sim(SIM)
+    }
+
+    /// The cheetah with other physics settings (`control_dt` must stay [`SIM`]'s 0.05 s).
+    pub fn with_sim(sim: SimParams) -> Self {
+        assert_eq!(sim.control_dt, CONTROL_DT);
+        let (world, robot) = build(&sim);
+        Self {
+            sim,
+            spec: EnvSpec {
+                id: "halfcheetah",
+                obs_dim: OBS_DIM,
+                act_dim: NA,
+                max_episode_steps: 1000,
+            },
+            world,
+            robot,
+            t: 0,
+            rng: Pcg64::seed_from_u64(0),
+        }
+    }
+
+    /// Starts an episode from a given state in MuJoCo's coordinates (`qpos` = [x, z − 0.7,
+    /// pitch, 6 hinge angles], `qvel` the matching velocities) in a fresh world.
+    pub fn set_state(&mut self, qpos: &[f32; NQ], qvel: &[f32; NQ]) -> Vec<f32> {
+        // A fresh world per episode: no contact or solver cache carries over, so an episode
+        // depends only on its seed and actions.
+        let (mut world, robot) = build(&self.sim);
+        let mut q = *qpos;
+        q[1] += INIT_Z;
+        robot.set_state(&mut world, &q, qvel);
+        self.world = world;
+        self.robot = robot;
+        self.t = 0;
+        self.obs(&self.qpos(), &self.qvel())
+    }
+
+    /// MuJoCo's `qpos`: [x, z − 0.7, pitch, 6 hinge angles].
+    pub fn qpos(&self) -> Vec<f32> {
+        let mut q = self.robot.qpos(&self.world);
+        q[1] -= INIT_Z;
+        q
+    }
+
+    pub fn qvel(&self) -> Vec<f32> {
+        self.robot.qvel(&self.world)
+    }
+
+    /// Total mass, kg.
+    pub fn mass(&self) -> f32 {
+        self.robot.mass(&self.world)
+    }
+
+    fn obs(&self, q: &[f32], v: &[f32]) -> Vec<f32> {
+        let mut o = Vec::with_capacity(OBS_DIM);
+        o.extend_from_slice(&q[1..]);
+        o.extend_from_slice(v);
+        o
+    }
+
+    /// A standard normal sample (Box–Muller; one of the pair is dropped to keep it simple).
+    fn normal(&mut self) -> f32 {
+        let u1: f32 = 1.0 - self.rng.gen::<f32>(); // (0, 1]: ln is finite
+        let u2: f32 = self.rng.gen();
+        (-2.0 * u1.ln()).sqrt() * (std::f32::consts::TAU * u2).cos()
+    }
+}
+
+impl Env for HalfCheetah {
+    fn spec(&self) -> &EnvSpec {
+        &self.spec
+    }
+
+    fn reset(&mut self, seed: Option<u64>) -> Vec<f32> {
+        if let Some(s) = seed {
+            self.rng = Pcg64::seed_from_u64(s);
+        }
+        let mut q = [0.0; NQ];
+        for x in q.iter_mut() {
+            *x += self.rng.gen_range(-RESET_QPOS_NOISE..RESET_QPOS_NOISE);
+        }
+        let v = [0.0; NQ].map(|_| RESET_QVEL_STD * self.normal());
+        self.set_state(&q, &v)
+    }
+
+    fn step(&mut self, action: &[f32]) -> Step {
+        let mut a = [0.0f32; NA];
+        for (ai, x) in a.iter_mut().zip(action) {
+            // NaN actions act as zero torque rather than poisoning the physics.
+            *ai = if x.is_nan() { 0.0 } else { x.clamp(-1.0, 1.0) };
+        }
+        let mut torques = a;
+        for (t, g) in torques.iter_mut().zip(GEARS) {
+            *t *= g;
+        }
+        let x_before = self.qpos()[0];
+        for _ in 0..self.sim.substeps {
+            self.robot.apply_joint_torques(&mut self.world, &torques);
+            self.world.step();
+        }
+        self.t += 1;
+        let truncated = self.t >= self.spec.max_episode_steps;
+        let ctrl_cost = CTRL_COST_WEIGHT * a.iter().map(|x| (*x as f64).powi(2)).sum::<f64>();
+        if !self.robot.is_sane(&self.world) {
+            return Step {
+                obs: vec![0.0; OBS_DIM],
+                reward: -ctrl_cost,
+                terminated: true,
+                truncated,
+                success: None,
+            };
+        }
+        let (q, v) = (self.qpos(), self.qvel());
+        let x_velocity = (q[0] as f64 - x_before as f64) / CONTROL_DT as f64;
+        Step {
+            obs: self.obs(&q, &v),
+            reward: x_velocity - ctrl_cost,
+            terminated: false,
+            truncated,
+            success: None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn random_actions(seed: u64, n: usize) -> Vec<[f32; NA]> {
+        let mut rng = Pcg64::seed_from_u64(seed);
+        (0..n)
+            .map(|_| [0; NA].map(|_| rng.gen_range(-1.0f32..1.0)))
+            .collect()
+    }
+
+    /// Runs one whole episode of `policy` (obs, step → action) from `seed`, checking that only
+    /// the time limit ends it; returns the torso's forward progress, m.
+    fn episode(
+        env: &mut HalfCheetah,
+        seed: u64,
+        mut policy: impl FnMut(&[f32], usize) -> [f32; NA],
+    ) -> f32 {
+        let mut obs = env.reset(Some(seed));
+        let x0 = env.qpos()[0];
+        for t in 0..1000 {
+            let s = env.step(&policy(&obs, t));
+            assert!(s.obs.iter().all(|x| x.is_finite()) && s.reward.is_finite());
+            assert!(!s.terminated, "terminated at step {t}");
+            assert_eq!(s.truncated, t + 1 == 1000, "step {t}");
+            obs = s.obs;
+        }
+        env.qpos()[0] - x0
+    }
+
+    #[test]
+    fn spec_and_obs_length() {
+        let mut env = HalfCheetah::new();
+        let s = env.spec().clone();
+        assert_eq!(
+            (s.id, s.obs_dim, s.act_dim, s.max_episode_steps),
+            ("halfcheetah", 17, 6, 1000)
+        );
+        let o = env.reset(Some(0));
+        assert_eq!(o.len(), 17);
+        // Reset: qpos within ±0.1 of the model pose (rootz 0 there).
+        assert!(o[..8].iter().all(|x| x.abs() <= 0.1), "{o:?}");
+        assert!(o[8..].iter().any(|x| x.abs() > 1e-3), "{o:?}");
+        assert_eq!(env.step(&[0.0; NA]).obs.len(), 17);
+        let m = env.mass();
+        assert!((m - 14.0).abs() < 1e-3, "mass {m}");
+    }
+
+    #[test]
+    fn same_seed_same_episode_and_seeds_differ() {
+        let acts = random_actions(42, 100);
+        let run = |seed| {
+            let mut env = HalfCheetah::new();
+            let mut out = env.reset(Some(seed));
+            let mut rewards = vec![];
+            for a in &acts {
+                let s = env.step(a);
+                out.extend(s.obs);
+                rewards.push(s.reward.to_bits());
+            }
+            (out.iter().map(|x| x.to_bits()).collect::<Vec<_>>(), rewards)
+        };
+        assert_eq!(run(7), run(7));
+        assert_ne!(run(7).0, run(8).0);
+        let mut env = HalfCheetah::new();
+        let a = env.reset(Some(3));
+        let b = env.reset(None);
+        assert_ne!(a, b);
+    }
+
+    #[test]
+    fn random_episodes_never_terminate_and_stay_on_the_floor() {
+        let mut env = HalfCheetah::new();
+        for seed in 0..3 {
+            let acts = random_actions(seed + 100, 1000);
+            episode(&mut env, seed, |obs, t| {
+                // The torso's centre (obs[0] is its height − 0.7) stays above the floor.
+                assert!(obs[0] > -0.7 + 0.02, "torso through the floor: {obs:?}");
+                acts[t]
+            });
+        }
+        // NaN and out-of-range actions are tolerated.
+        env.reset(Some(2));
+        let s = env.step(&[f32::NAN, 5.0, -5.0, f32::INFINITY, 0.0, 1.0]);
+        assert!(s.obs.iter().all(|x| x.is_finite()));
+    }
+
+    #[test]
+    fn flipped_on_its_back_keeps_going() {
+        let mut env = HalfCheetah::new();
+        // Upside down (pitch π), dropped from 0.3 m higher: lands on its back and the episode
+        // runs on to the time limit, as in Gymnasium (the cheetah has no unhealthy state).
+        let mut q = [0.0; NQ];
+        q[1] = 0.3;
+        q[2] = std::f32::consts::PI;
+        let mut obs = env.set_state(&q, &[0.0; NQ]);
+        let acts = random_actions(9, 1000);
+        for (t, a) in acts.iter().enumerate() {
+            let s = env.step(a);
+            assert!(!s.terminated && s.obs.iter().all(|x| x.is_finite()));
+            assert_eq!(s.truncated, t + 1 == 1000);
+            obs = s.obs;
+        }
+        assert!(obs[0] > -0.7 && obs[1].cos() < 0.0, "{obs:?}");
+    }
+
+    /// An open-loop sine gait: a_j = sin(2π f t + φ_j) (amplitude 1), found by a short search
+    /// run once on this env (60 random samples then hill-climbing on the forward progress of
+    /// seeds 100–101, 200 s); [f Hz, then φ_j for bthigh … ffoot]. It runs ~530 m in 1000 steps
+    /// here; the same gait goes ~90 m *backward* in Gymnasium's MuJoCo HalfCheetah-v5, and the
+    /// same search run on MuJoCo found at best 67 m: open-loop gaits exploit the engine.
+    const GAIT: [f32; 7] = [
+        4.22699, -2.7452831, 1.0884578, -1.0541096, 0.44694817, -2.9582198, 1.9110123,
+    ];
+
+    fn gait(p: &[f32; 7], t: usize) -> [f32; NA] {
+        let phase = std::f32::consts::TAU * p[0] * t as f32 * CONTROL_DT;
+        std::array::from_fn(|j| (phase + p[1 + j]).sin())
+    }
+
+    #[test]
+    fn sine_gait_beats_standing_still() {
+        let mut env = HalfCheetah::new();
+        for seed in 0..2 {
+            let still = episode(&mut env, seed, |_, _| [0.0; NA]);
+            let moving = episode(&mut env, seed, |_, t| gait(&GAIT, t));
+            assert!(
+                moving > still + 50.0,
+                "gait {moving} m vs standing {still} m"
+            );
+        }
+    }
+}
