@@ -7,15 +7,19 @@
 //! Envs: `pendulum` (Gymnasium `Pendulum-v1`, exact), `hopper` (Gymnasium `Hopper-v5`'s task
 //! on rapier3d physics instead of MuJoCo) and `fpc-assembly` (the paper's 3C assembly task: a
 //! gripper inserts a flexible printed circuit into a connector slot with 0.05 mm clearance,
-//! scored by success rate; [`FpcAssembly`], configured by [`FpcConfig`]). [`physics`] holds the
+//! scored by success rate; [`FpcAssembly`], configured by [`FpcConfig`]), `ant` (Gymnasium
+//! `Ant-v5`'s task on rapier3d, 27-dim observation; `ant-contacts` adds v5's 78 contact-force
+//! terms, 105-dim; [`Ant`]). [`physics`] holds the
 //! rapier helpers that the locomotion robots share: world setup, planar root, hinge chains,
 //! joint torques and state.
 
+mod ant;
 pub mod fpc_assembly;
 mod hopper;
 mod pendulum;
 pub mod physics;
 
+pub use ant::{Ant, AntObs};
 pub use fpc_assembly::{FpcAssembly, FpcConfig};
 pub use hopper::Hopper;
 pub use pendulum::{Pendulum, PendulumOptions};
@@ -77,6 +81,10 @@ const REGISTRY: &[(&str, Constructor)] = &[
         Ok(Box::new(Pendulum::with_options(&options)))
     }),
     ("hopper", |o| without_options("hopper", o, Hopper::new)),
+    ("ant", |o| without_options("ant", o, Ant::new)),
+    ("ant-contacts", |o| {
+        without_options("ant-contacts", o, Ant::with_contacts)
+    }),
     ("fpc-assembly", |o| {
         let config: FpcConfig = parse_options("fpc-assembly", o)?;
         Ok(Box::new(FpcAssembly::with_config(config).map_err(
@@ -168,6 +176,7 @@ fn canonical(name: &str) -> String {
     match name.to_ascii_lowercase().as_str() {
         "pendulum-v1" => "pendulum".to_string(),
         "hopper-v5" => "hopper".to_string(),
+        "ant-v5" => "ant".to_string(),
         other => other.to_string(),
     }
 }
