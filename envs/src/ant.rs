@@ -20,9 +20,9 @@
 //!   torso, then per leg 1..4 the welded leg capsule, the hip link, the ankle link.
 //! - Action (8) in [−1, 1] (clipped; NaN → 0), × gear 150 → joint torque, N·m, in the XML's
 //!   actuator order hip_4, ankle_4, hip_1, ankle_1, hip_2, ankle_2, hip_3, ankle_3.
-//! - Control dt 0.05 s (MuJoCo 0.01 × frame_skip 5). Reward = ẋ (torso x over the step / dt)
-//!   + 1 if healthy − 0.5‖a‖² − 5e-4‖clip(cfrc_ext, ±1)‖² (the contact cost in both variants, as
-//!   in Gymnasium v5). Healthy: torso z ∈ [0.2, 1.0] and the state finite; unhealthy
+//! - Control dt 0.05 s (MuJoCo 0.01 × frame_skip 5). Reward = ẋ (torso x over the step / dt),
+//!   plus 1 if healthy, − 0.5‖a‖² − 5e-4‖clip(cfrc_ext, ±1)‖² (the contact cost in both
+//!   variants, as in Gymnasium v5). Healthy: torso z ∈ [0.2, 1.0] and the state finite; unhealthy
 //!   terminates; 1000 steps truncates. As in Gymnasium, lying on its back is healthy.
 //! - Reset: the model pose plus U(±0.1) on every `qpos` entry (the quaternion is renormalised)
 //!   and 0.1·N(0, 1) on every `qvel` entry.
@@ -406,9 +406,10 @@ mod tests {
         a
     }
 
-    /// The open-loop trot of [`trot`] found by a grid search on seed 0 (frequency, ankle phase,
-    /// hip and ankle amplitudes).
-    const TROT: [f32; 4] = [1.2, std::f32::consts::PI, 1.0, 0.3];
+    /// The open-loop trot of [`trot`] (frequency in rad per step, ankle phase, hip and ankle
+    /// amplitudes), the best worst-case distance over seeds 0–2 of a grid search (6 frequencies
+    /// × 8 phases × 6 hip × 3 ankle amplitudes), started after 10 steps of settling.
+    const TROT: [f32; 4] = [1.0, std::f32::consts::PI, 0.7, 0.2];
 
     #[test]
     fn spaces_sizes_and_mass() {
@@ -460,7 +461,17 @@ mod tests {
         };
         assert_eq!(run(7), run(7));
         assert_ne!(run(7).0, run(8).0);
+        // The same env replays a seed exactly after other episodes (a fresh world per reset).
         let mut env = Ant::new();
+        let mut replay = || {
+            let mut o = env.reset(Some(5));
+            for a in &acts {
+                o.extend(env.step(a).obs);
+            }
+            o.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+        };
+        let first = replay();
+        assert_eq!(first, replay());
         let a = env.reset(Some(3));
         let b = env.reset(None);
         assert_ne!(a, b);
@@ -543,6 +554,10 @@ mod tests {
         let mut env = Ant::new();
         let run = |env: &mut Ant, seed, gait: bool| {
             env.reset(Some(seed));
+            // Lands on its feet first (the reset pose is ~0.4 m up).
+            for _ in 0..10 {
+                env.step(&[0.0; 8]);
+            }
             let (x0, mut reward) = (env.qpos()[0], 0.0);
             for t in 0..200 {
                 let a = if gait { trot(t, TROT) } else { [0.0; 8] };
@@ -556,7 +571,7 @@ mod tests {
             let (d_still, r_still) = run(&mut env, seed, false);
             let (d_trot, r_trot) = run(&mut env, seed, true);
             assert!(d_still.abs() < 0.3, "standing drifted {d_still} m");
-            assert!(d_trot > 4.0, "trot went {d_trot} m");
+            assert!(d_trot > 2.5, "trot went {d_trot} m");
             // The forward reward Σ ẋ is the distance / dt; the trot also pays its control cost.
             let (f_trot, f_still) = (d_trot / CONTROL_DT, d_still / CONTROL_DT);
             assert!(

@@ -192,6 +192,8 @@ mod tests {
         }
         assert_eq!(spec("Pendulum-v1").unwrap().obs_dim, 3);
         assert_eq!(spec("Hopper-v5").unwrap().obs_dim, 11);
+        assert_eq!(spec("Ant-v5").unwrap().obs_dim, 27);
+        assert_eq!(spec("ant-contacts").unwrap().obs_dim, 105);
         let err = make("pendulm").err().unwrap().to_string();
         assert!(err.contains("pendulm") && err.contains("pendulum"), "{err}");
     }
