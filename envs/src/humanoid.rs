@@ -40,8 +40,8 @@
 //! - The torso link's body origin is the torso's centre of mass (rapier moves a free root with
 //!   its centre of mass): `qpos`/`qvel` are converted to and from MuJoCo's torso origin.
 //! - `cfrc_ext`: rapier's contact forces differ from MuJoCo's soft contacts (on landing,
-//!   MuJoCo's peak forces are larger); the friction part takes its direction from rapier's
-//!   last solver iteration ([`crate::physics::collider_contact_wrench`]). Values are from the
+//!   MuJoCo's peak forces are larger); the friction part is rebuilt from rapier's step-local
+//!   tangent basis ([`crate::physics::colliders_contact_wrench`]). Values are from the
 //!   state after the step (MuJoCo's `cinert`/`cvel` are from the step's start: a 3 ms lag).
 //! - The XML's two fixed tendons (hip–knee) have no actuator, limit or spring, so no effect:
 //!   left out.
@@ -68,7 +68,7 @@
 //!   steps/s, Gymnasium `Humanoid-v5` 580–730 steps/s (1.9k unloaded earlier that day).
 
 use crate::physics::{
-    add_floor, collider_contact_wrench, new_world, Articulation, Geom, LinkDesc, RootJoint,
+    add_floor, colliders_contact_wrench, new_world, Articulation, Geom, LinkDesc, RootJoint,
     SimParams,
 };
 use crate::{Env, EnvSpec, Step};
@@ -634,14 +634,11 @@ impl Humanoid {
         let c = self.center_of_mass();
         BODIES
             .iter()
-            .map(|&(_, link, geom)| {
-                let [t, f] = match geom {
-                    None => self.robot.link_contact_wrench(&self.world, link, c),
-                    Some(g) => {
-                        collider_contact_wrench(&self.world, self.robot.colliders(link)[g], c)
-                    }
-                };
-                [t.x, t.y, t.z, f.x, f.y, f.z]
+            .map(|&(_, link, geom)| match geom {
+                None => self.robot.contact_wrench(&self.world, link, c),
+                Some(g) => {
+                    colliders_contact_wrench(&self.world, &self.robot.colliders(link)[g..=g], c)
+                }
             })
             .collect()
     }

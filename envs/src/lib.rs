@@ -9,10 +9,13 @@
 //! physics instead of MuJoCo; [`Humanoid`]'s observation parts are chosen by
 //! [`HumanoidOptions`]); and `fpc-assembly` (the paper's 3C assembly task: a
 //! gripper inserts a flexible printed circuit into a connector slot with 0.05 mm clearance,
-//! scored by success rate; [`FpcAssembly`], configured by [`FpcConfig`]). [`physics`] holds the
+//! scored by success rate; [`FpcAssembly`], configured by [`FpcConfig`]). [`Ant`]'s default
+//! observation is 27-dim; `ant-contacts` adds v5's 78 contact-force terms (105-dim). [`physics`]
+//! holds the
 //! rapier helpers that the locomotion robots share: world setup, planar root, hinge chains,
 //! joint torques and state.
 
+mod ant;
 pub mod fpc_assembly;
 mod halfcheetah;
 mod hopper;
@@ -21,6 +24,7 @@ mod pendulum;
 pub mod physics;
 mod walker2d;
 
+pub use ant::{Ant, AntObs};
 pub use fpc_assembly::{FpcAssembly, FpcConfig};
 pub use halfcheetah::HalfCheetah;
 pub use hopper::Hopper;
@@ -90,6 +94,10 @@ const REGISTRY: &[(&str, Constructor)] = &[
     }),
     ("halfcheetah", |o| {
         without_options("halfcheetah", o, HalfCheetah::new)
+    }),
+    ("ant", |o| without_options("ant", o, Ant::new)),
+    ("ant-contacts", |o| {
+        without_options("ant-contacts", o, Ant::with_contacts)
     }),
     ("humanoid", |o| {
         let options: HumanoidOptions = parse_options("humanoid", o)?;
@@ -188,6 +196,7 @@ fn canonical(name: &str) -> String {
         "hopper-v5" => "hopper".to_string(),
         "walker2d-v5" => "walker2d".to_string(),
         "halfcheetah-v5" => "halfcheetah".to_string(),
+        "ant-v5" => "ant".to_string(),
         "humanoid-v5" => "humanoid".to_string(),
         other => other.to_string(),
     }
@@ -204,6 +213,8 @@ mod tests {
         }
         assert_eq!(spec("Pendulum-v1").unwrap().obs_dim, 3);
         assert_eq!(spec("Hopper-v5").unwrap().obs_dim, 11);
+        assert_eq!(spec("Ant-v5").unwrap().obs_dim, 27);
+        assert_eq!(spec("ant-contacts").unwrap().obs_dim, 105);
         let err = make("pendulm").err().unwrap().to_string();
         assert!(err.contains("pendulm") && err.contains("pendulum"), "{err}");
     }

@@ -577,50 +577,74 @@ impl Articulation {
     }
 }
 
-/// The contact wrench on collider `c` from the last rapier step, as `[torque, force]` (the
-/// torque about the point `about`), world frame (N·m, N): what the contacts did to the body
-/// that carries `c`.
+/// The contact wrench on `colliders` from the last rapier step, as MuJoCo's `cfrc_ext` gives it:
+/// `[torque; force]` in the world frame, the torque about the world point `point` (N·m, N).
 ///
-/// Each contact point contributes its normal impulse along the manifold normal and its
-/// friction impulse, over the step's `dt`. Rapier stores the friction impulse of the whole
-/// step as two coordinates in a per-step tangent basis that it does not keep, and the
-/// world-space friction of the last solver iteration (used for warm-starting); the friction
-/// force here takes its size from the former and its direction from the latter, so it is exact
-/// when the friction direction did not turn inside the step. The point is the contact point
-/// on `c`'s side.
-pub fn collider_contact_wrench(w: &PhysicsWorld, c: ColliderHandle, about: Vector) -> [Vector; 2] {
+/// Normal and friction forces are both included: each solver contact point's normal impulse
+/// (summed over the step's solver substeps) along the contact normal, plus its friction impulse
+/// in the tangent plane, divided by the step's `dt`; the torque is `(p − point) × f` with `p` the
+/// contact point on the collider's own surface. Rapier keeps a contact's total friction impulse in
+/// its step-local tangent basis only; the basis is recovered from the last substep's impulse,
+/// which rapier also stores as a world vector (exact when that impulse is non-zero; a contact
+/// whose last substep carried no friction contributes its normal force only).
+///
+/// MuJoCo's `cfrc_ext` of a body is about the centre of mass of its kinematic tree (for a
+/// free-floating robot, [`Articulation::center_of_mass`]), so pass that point to match it.
+pub fn colliders_contact_wrench(
+    w: &PhysicsWorld,
+    colliders: &[ColliderHandle],
+    point: Vector,
+) -> [f32; 6] {
     let dt = w.integration_parameters.dt;
     let (mut torque, mut force) = (Vector::ZERO, Vector::ZERO);
-    for pair in w.contact_pairs_with(c) {
-        let first = pair.collider1 == c;
-        let pose = if first {
-            w.colliders[pair.collider1].position()
-        } else {
-            w.colliders[pair.collider2].position()
-        };
-        for m in pair.solver_manifolds() {
-            for p in &m.points {
-                let d = &p.data;
-                let t = d.tangent_impulse.norm();
-                let dir = d.warmstart_tangent_world.normalize_or_zero();
-                // Impulses as applied to collider2: the normal one pushes it along the normal
-                // (from collider1 to collider2); the friction impulses are recorded for
-                // collider1, so collider2 gets their opposite.
-                let on2 = m.data.normal * d.impulse - dir * t;
-                if on2 == Vector::ZERO {
-                    continue;
+    for &c in colliders {
+        for pair in w.contact_pairs_with(c) {
+            let first = pair.collider1 == c;
+            let pose = *w.colliders[c].position();
+            for m in pair.solver_manifolds() {
+                // Rapier's solver pushes collider1's body along −normal (and collider2's along
+                // +normal), with the friction impulse expressed for collider1's body.
+                let dir1 = -m.data.normal;
+                for pt in &m.points {
+                    let d = &pt.data;
+                    let mut f1 = dir1 * d.impulse;
+                    let last = d.warmstart_tangent_impulse;
+                    let last_norm = last.norm();
+                    if last_norm > 0.0 && d.warmstart_tangent_world.length() > 0.0 {
+                        // warmstart_tangent_world = t1·last.x + t2·last.y with t2 = dir1 × t1:
+                        // turn it back by last's angle to rebuild (t1, t2), then apply the
+                        // total tangent impulse in that basis.
+                        let u = d.warmstart_tangent_world.normalize();
+                        let u_perp = dir1.cross(u);
+                        let (cx, cy) = (last.x / last_norm, last.y / last_norm);
+                        let tot = d.tangent_impulse;
+                        f1 += u * (cx * tot.x + cy * tot.y) + u_perp * (cx * tot.y - cy * tot.x);
+                    }
+                    let (f, local) = if first {
+                        (f1, pt.local_p1)
+                    } else {
+                        (-f1, pt.local_p2)
+                    };
+                    let f = f / dt;
+                    let p = pose.transform_point(local);
+                    force += f;
+                    torque += (p - point).cross(f);
                 }
-                let f = if first { -on2 } else { on2 } / dt;
-                let x = pose.transform_point(if first { p.local_p1 } else { p.local_p2 });
-                torque += (x - about).cross(f);
-                force += f;
             }
         }
     }
-    [torque, force]
+    [torque.x, torque.y, torque.z, force.x, force.y, force.z]
 }
 
 impl Articulation {
+    /// The contact wrench on link `i` (all its colliders) from the last rapier step,
+    /// `[torque; force]` in the world frame about the world point `point`: see
+    /// [`colliders_contact_wrench`]. With `point` = [`Self::center_of_mass`] of a free-floating
+    /// robot, this is MuJoCo's `cfrc_ext` of the matching body.
+    pub fn contact_wrench(&self, w: &PhysicsWorld, i: usize, point: Vector) -> [f32; 6] {
+        colliders_contact_wrench(w, &self.colliders[i], point)
+    }
+
     /// The world-frame velocity of every link: `(angular velocity, linear velocity of the
     /// link's body origin)`, by forward recursion from the root over the hinges (exact rigid
     /// kinematics from `qvel` and the current poses, independent of when rapier last wrote the
@@ -657,13 +681,16 @@ impl Articulation {
         out
     }
 
-    /// The contact wrench on link `i` (every collider of it), `[torque, force]` with the
-    /// torque about `about`, world frame; see [`collider_contact_wrench`].
-    pub fn link_contact_wrench(&self, w: &PhysicsWorld, i: usize, about: Vector) -> [Vector; 2] {
-        self.colliders[i].iter().fold([Vector::ZERO; 2], |acc, &c| {
-            let [t, f] = collider_contact_wrench(w, c, about);
-            [acc[0] + t, acc[1] + f]
-        })
+    /// The robot's centre of mass in the world frame (every link, connectors included), m.
+    pub fn center_of_mass(&self, w: &PhysicsWorld) -> Vector {
+        let (mut sum, mut mass) = (Vector::ZERO, 0.0);
+        for &h in &self.bodies {
+            let rb = &w.bodies[h];
+            let m = rb.mass();
+            sum += m * rb.position().transform_point(rb.local_center_of_mass());
+            mass += m;
+        }
+        sum / mass
     }
 }
 
@@ -887,5 +914,76 @@ mod tests {
         }
         let v = art.qvel(&w);
         assert!(v[6] > 0.1 && v[7] < -0.1 && art.is_sane(&w), "{v:?}");
+    }
+}
+#[cfg(test)]
+mod contact_wrench_tests {
+    use super::*;
+
+    /// A ball with a sprung arm, sliding on the floor: the contact wrench's force (normal and
+    /// friction) equals the robot's momentum change minus gravity, and the centre of mass lies
+    /// between the ball's centre and the arm.
+    #[test]
+    fn contact_wrench_matches_the_momentum_change_when_sliding() {
+        let p = SimParams {
+            control_dt: 0.01,
+            substeps: 1,
+            solver_iterations: 2,
+        };
+        let mut w = new_world(&p);
+        add_floor(&mut w, 1.0);
+        let z = 0.25;
+        let links = [
+            LinkDesc::root(
+                "ball",
+                [0.0, 0.0, z],
+                vec![Geom::Sphere {
+                    c: [0.0, 0.0, z],
+                    r: 0.25,
+                }],
+            ),
+            LinkDesc {
+                stiffness: 50.0,
+                ..LinkDesc::hinge(
+                    "arm",
+                    0,
+                    [0.25, 0.0, z],
+                    [0.0, 0.0, 1.0],
+                    vec![Geom::capsule([0.25, 0.0, z], [0.65, 0.0, z], 0.05)],
+                )
+            },
+        ];
+        let art = Articulation::build(&mut w, RootJoint::Free, &links);
+        let com = art.center_of_mass(&w);
+        assert!(com.x > 0.0 && com.x < 0.45 && com.y.abs() < 1e-6, "{com:?}");
+        for _ in 0..50 {
+            art.apply_joint_torques(&mut w, &[0.0]);
+            w.step();
+        }
+        let q = art.qpos(&w);
+        art.set_state(&mut w, &q, &[1.0, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        let m = art.mass(&w);
+        for t in 0..10 {
+            let v0 = art.qvel(&w);
+            art.apply_joint_torques(&mut w, &[0.0]);
+            w.step();
+            let v1 = art.qvel(&w);
+            let com = art.center_of_mass(&w);
+            let (a, b) = (
+                art.contact_wrench(&w, 0, com),
+                art.contact_wrench(&w, 1, com),
+            );
+            let f = Vector::new(a[3] + b[3], a[4] + b[4], a[5] + b[5]);
+            let want = m * (Vector::new(v1[0] - v0[0], v1[1] - v0[1], v1[2] - v0[2]) / 0.01)
+                - m * Vector::new(0.0, 0.0, GRAVITY_Z);
+            // Sliding along (1, 0.5): friction opposes it (μ = 1, so about the weight).
+            if t >= 4 {
+                assert!(
+                    (f - want).length() < 0.05 * want.length(),
+                    "{f:?} vs {want:?}"
+                );
+                assert!(f.x < -0.5 * m * 9.81 && f.y < 0.0, "{f:?}");
+            }
+        }
     }
 }
