@@ -119,7 +119,7 @@ impl Shape {
 /// The rotation `[w, x, y, z]` that turns +Z onto the direction `d` (identity for a zero `d`).
 pub fn rotation_from_z(d: [f32; 3]) -> [f32; 4] {
     let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-    if !(len > 1e-12) {
+    if len.is_nan() || len <= 1e-12 {
         return IDENTITY;
     }
     let (x, y, z) = (d[0] / len, d[1] / len, d[2] / len);
