@@ -95,9 +95,9 @@ fn sky(d: V3) -> V3 {
     add(scale(horizon, 1.0 - t), scale(zenith, t))
 }
 
-/// The sky's colour straight ahead of a camera that looks horizontally (what an empty scene
-/// shows at the picture's centre is close to this).
-pub fn sky_rgb(d: V3) -> [u8; 3] {
+/// The sky's colour for a ray in direction `d` (what an empty scene shows).
+#[cfg(test)]
+fn sky_rgb(d: V3) -> [u8; 3] {
     to_rgb(sky(normalize(d)))
 }
 

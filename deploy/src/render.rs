@@ -2,9 +2,10 @@
 //! GIF, or to a PNG strip of a few frames, so that a person can see what the robot does.
 //!
 //! The env says what is in its world ([`selkd_envs::Env::scene`]) and how long a step lasts
-//! ([`selkd_envs::Env::control_dt`]); [`crate::raycast`] draws it. The camera's distance and
-//! height are fixed by the first frame, and it follows the scene's focus sideways (a running
-//! robot stays in the picture while the checkered floor shows it moving).
+//! ([`selkd_envs::Env::control_dt`]); [`crate::raycast`] draws it. The camera's distance (the
+//! scene's extent) and height (the middle of what the first frame holds) are fixed by the first
+//! frame, and it follows the scene's focus sideways (a running robot stays in the picture while
+//! the checkered floor shows it moving).
 
 use crate::raycast::{render, Camera};
 use anyhow::{anyhow, bail, Context, Result};
@@ -239,7 +240,7 @@ fn run_inner(args: RenderArgs) -> Result<()> {
 
     // The pictures.
     let first = &frames[0];
-    let height = first.focus[2];
+    let height = mid_height(first);
     let pictures = |indices: &[usize]| -> Vec<Vec<u8>> {
         indices
             .iter()
@@ -297,6 +298,25 @@ fn run_inner(args: RenderArgs) -> Result<()> {
         started.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+/// The height the camera aims at: the middle of what the scene holds, from the floor up (so a
+/// tall robot is seen whole, feet and floor included).
+fn mid_height(scene: &Scene) -> f32 {
+    let (mut lo, mut hi) = (f32::MAX, f32::MIN);
+    for s in &scene.shapes {
+        let r = s.bounding_radius();
+        lo = lo.min(s.position[2] - r);
+        hi = hi.max(s.position[2] + r);
+    }
+    if let Some(f) = scene.floor {
+        lo = lo.min(f.height);
+    }
+    if lo.is_finite() && hi.is_finite() && lo <= hi {
+        (lo + hi) / 2.0
+    } else {
+        scene.focus[2]
+    }
 }
 
 fn write_gif(out: &Path, w: usize, h: usize, frames: &[Vec<u8>], delay_cs: u16) -> Result<()> {
