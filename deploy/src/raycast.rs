@@ -241,7 +241,10 @@ const SUN: V3 = [-0.35, -0.55, 0.76];
 fn shadowed(scene: &Scene, p: V3) -> bool {
     let l = normalize(SUN);
     let eps = 1e-4 * (1.0 + scene.extent);
-    scene.shapes.iter().any(|s| hit_shape(s, p, l, eps).is_some())
+    scene
+        .shapes
+        .iter()
+        .any(|s| hit_shape(s, p, l, eps).is_some())
 }
 
 fn trace(scene: &Scene, o: V3, d: V3) -> V3 {
@@ -320,7 +323,10 @@ mod tests {
         let (w, h) = (64, 48);
         let img = render(&s, &cam, w, h);
         let c = pixel(&img, w, w / 2, h / 2);
-        assert!(c[0] > 80 && c[0] > 2 * c[1] && c[0] > 2 * c[2], "centre {c:?}");
+        assert!(
+            c[0] > 80 && c[0] > 2 * c[1] && c[0] > 2 * c[2],
+            "centre {c:?}"
+        );
         // The bottom row is the floor (grey checker), not the sphere nor the sky.
         let floor = pixel(&img, w, 3, h - 1);
         let sky = sky_rgb(cam.ray(3.5, h as f32 - 0.5, w, h));

@@ -3,9 +3,9 @@
 //!
 //! The env says what is in its world ([`selkd_envs::Env::scene`]) and how long a step lasts
 //! ([`selkd_envs::Env::control_dt`]); [`crate::raycast`] draws it. The camera's distance (the
-//! scene's extent) and height (the middle of what the first frame holds) are fixed by the first
-//! frame, and it follows the scene's focus sideways (a running robot stays in the picture while
-//! the checkered floor shows it moving).
+//! scene's extent) and height (its focus) are fixed by the first frame, and it follows the
+//! scene's focus sideways (a running robot stays in the picture while the checkered floor shows
+//! it moving).
 
 use crate::raycast::{render, Camera};
 use anyhow::{anyhow, bail, Context, Result};
@@ -240,17 +240,14 @@ fn run_inner(args: RenderArgs) -> Result<()> {
 
     // The pictures.
     let first = &frames[0];
-    let height = mid_height(first);
+    let height = first.focus[2];
     let pictures = |indices: &[usize]| -> Vec<Vec<u8>> {
         indices
             .iter()
             .map(|&i| {
                 let f = &frames[i];
-                let cam = Camera::looking_at(
-                    [f.focus[0], f.focus[1], height],
-                    first.extent,
-                    first.view,
-                );
+                let cam =
+                    Camera::looking_at([f.focus[0], f.focus[1], height], first.extent, first.view);
                 render(f, &cam, w, h)
             })
             .collect()
@@ -300,28 +297,8 @@ fn run_inner(args: RenderArgs) -> Result<()> {
     Ok(())
 }
 
-/// The height the camera aims at: the middle of what the scene holds, from the floor up (so a
-/// tall robot is seen whole, feet and floor included).
-fn mid_height(scene: &Scene) -> f32 {
-    let (mut lo, mut hi) = (f32::MAX, f32::MIN);
-    for s in &scene.shapes {
-        let r = s.bounding_radius();
-        lo = lo.min(s.position[2] - r);
-        hi = hi.max(s.position[2] + r);
-    }
-    if let Some(f) = scene.floor {
-        lo = lo.min(f.height);
-    }
-    if lo.is_finite() && hi.is_finite() && lo <= hi {
-        (lo + hi) / 2.0
-    } else {
-        scene.focus[2]
-    }
-}
-
 fn write_gif(out: &Path, w: usize, h: usize, frames: &[Vec<u8>], delay_cs: u16) -> Result<()> {
-    let file =
-        std::fs::File::create(out).with_context(|| format!("creating {}", out.display()))?;
+    let file = std::fs::File::create(out).with_context(|| format!("creating {}", out.display()))?;
     let mut enc = gif::Encoder::new(std::io::BufWriter::new(file), w as u16, h as u16, &[])
         .context("writing the GIF")?;
     enc.set_repeat(gif::Repeat::Infinite)
@@ -348,8 +325,7 @@ fn write_strip(out: &Path, w: usize, h: usize, frames: &[Vec<u8>]) -> Result<()>
             img[dst..dst + 3 * w].copy_from_slice(&f[3 * y * w..3 * (y + 1) * w]);
         }
     }
-    let file =
-        std::fs::File::create(out).with_context(|| format!("creating {}", out.display()))?;
+    let file = std::fs::File::create(out).with_context(|| format!("creating {}", out.display()))?;
     let mut enc = png::Encoder::new(std::io::BufWriter::new(file), total_w as u32, h as u32);
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);

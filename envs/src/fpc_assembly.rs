@@ -1284,7 +1284,7 @@ impl Env for FpcAssembly {
             colors::GREY,
         ));
         let reach = self.params.free_length + self.cfg.start_gap_mm[1];
-        let focus = sc.slot.transform_point(Vector::new(-reach / 3.0, 0.0, 2.0));
+        let focus = sc.slot.transform_point(Vector::new(-0.6 * reach, 0.0, 3.0));
         Some(Scene {
             shapes,
             floor: Some(Floor {
@@ -1293,7 +1293,8 @@ impl Env for FpcAssembly {
                 colors: [[52, 120, 80], [40, 100, 66]],
             }),
             focus: [focus.x, focus.y, focus.z],
-            extent: reach + self.cfg.slot_depth_mm + 6.0,
+            // The strip and the slot fill the picture; the wrist post may leave it.
+            extent: 0.75 * (reach + self.cfg.slot_depth_mm + 6.0),
             view: View::ThreeQuarter,
         })
     }

@@ -623,7 +623,8 @@ pub fn world_floor(w: &PhysicsWorld) -> Option<f32> {
 }
 
 /// The scene of a robot built with [`Articulation::build`]: every link's colliders, coloured
-/// per link ([`crate::scene::colors::link`]), the world's floor, the camera on the root link;
+/// per link ([`crate::scene::colors::link`]), the world's floor, the camera on the root link
+/// (at half the robot's height);
 /// a side view for a planar robot, a three-quarter view for a free one. Any robot on this
 /// module draws with `fn scene(&self) -> Option<Scene> { Some(physics::robot_scene(&self.world,
 /// &self.robot)) }`.
@@ -658,7 +659,9 @@ pub fn robot_scene(world: &PhysicsWorld, robot: &Articulation) -> crate::scene::
     Scene {
         shapes,
         floor: floor.map(|h| Floor::new(h, 0.5)),
-        focus: [root.x, root.y, root.z],
+        // Above the root, halfway up the robot (from the floor): a camera aimed there sees it
+        // whole, feet and floor included.
+        focus: [root.x, root.y, (lo[2] + hi[2]) / 2.0],
         extent,
         view: match robot.root {
             RootJoint::Planar => View::Side,

@@ -20,7 +20,9 @@ fn ok(out: &Output) -> String {
 
 /// The number just before `word` in selkd's summary line, e.g. "(12 frames".
 fn number_before(text: &str, word: &str) -> usize {
-    let i = text.find(word).unwrap_or_else(|| panic!("no `{word}` in {text}"));
+    let i = text
+        .find(word)
+        .unwrap_or_else(|| panic!("no `{word}` in {text}"));
     text[..i]
         .split(|c: char| !c.is_ascii_digit())
         .rfind(|s| !s.is_empty())
@@ -33,9 +35,7 @@ fn number_before(text: &str, word: &str) -> usize {
 fn gif_frames(path: &Path, w: u16, h: u16) -> Vec<(Vec<u8>, u16)> {
     let mut opts = gif::DecodeOptions::new();
     opts.set_color_output(gif::ColorOutput::RGBA);
-    let mut d = opts
-        .read_info(std::fs::File::open(path).unwrap())
-        .unwrap();
+    let mut d = opts.read_info(std::fs::File::open(path).unwrap()).unwrap();
     assert_eq!((d.width(), d.height()), (w, h), "{}", path.display());
     let mut frames = vec![];
     while let Some(f) = d.read_next_frame().unwrap() {
@@ -82,8 +82,15 @@ fn random_hopper_and_fpc_assembly_render_to_gif_and_png() {
         assert_eq!(number_before(&err, " frames"), frames.len(), "{err}");
         assert_eq!(frames.len(), 1 + taken.div_ceil(every), "{env}: {err}");
         assert!(frames.len() >= 3, "{env}: {err}");
-        assert!(frames.iter().all(|(_, d)| *d == delay), "{env}: frame delay");
-        assert_ne!(frames[0].0, frames.last().unwrap().0, "{env}: nothing moved");
+        assert!(
+            frames.iter().all(|(_, d)| *d == delay),
+            "{env}: frame delay"
+        );
+        assert_ne!(
+            frames[0].0,
+            frames.last().unwrap().0,
+            "{env}: nothing moved"
+        );
 
         let png_path = dir.join(format!("{env}.png"));
         let out = render(&[
@@ -136,7 +143,10 @@ fn bad_render_arguments_get_one_line_errors() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
         assert_eq!(err.trim().lines().count(), 1, "{args:?}: one line: {err}");
-        assert!(err.contains(want) && !err.contains("panicked"), "{args:?}: {err}");
+        assert!(
+            err.contains(want) && !err.contains("panicked"),
+            "{args:?}: {err}"
+        );
     }
     assert!(!Path::new(out_gif).exists());
     let _ = std::fs::remove_dir_all(&dir);
@@ -171,7 +181,11 @@ fn a_trained_runs_checkpoint_renders_its_best_actor() {
     assert_ne!(frames[0].0, frames[30].0);
     let again = std::fs::read(&gif_path).unwrap();
     ok(&render(&args));
-    assert_eq!(std::fs::read(&gif_path).unwrap(), again, "same seed, same GIF");
+    assert_eq!(
+        std::fs::read(&gif_path).unwrap(),
+        again,
+        "same seed, same GIF"
+    );
     // A checkpoint directory or its model.safetensors, a chosen actor.
     let ckpt = run_dir.join("checkpoints/final");
     let model = ckpt.join("model.safetensors");
