@@ -102,7 +102,7 @@ fn sky_rgb(d: V3) -> [u8; 3] {
 }
 
 fn to_rgb(c: V3) -> [u8; 3] {
-    c.map(|x| (x.clamp(0.0, 1.0).powf(1.0 / 1.1) * 255.0 + 0.5) as u8)
+    c.map(|x| (x.clamp(0.0, 1.0) * 255.0 + 0.5) as u8)
 }
 
 /// The nearest hit of the ray `o + t·d` (t > `t_min`) on `s`: (t, world normal).
