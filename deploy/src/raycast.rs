@@ -214,9 +214,67 @@ fn cuboid(o: V3, d: V3, h: V3, t_min: f32) -> Option<(f32, V3)> {
     }
 }
 
+/// Where a shape can appear, for skipping it cheaply: a conservative pixel rectangle of its
+/// bounding ball, and the floor rectangle its shadow can fall in.
+struct Cull {
+    /// x0, x1, y0, y1 in pixels.
+    screen: [f32; 4],
+    /// x0, x1, y0, y1 on the floor.
+    shadow: [f32; 4],
+}
+
+fn culls(scene: &Scene, cam: &Camera, w: usize, h: usize) -> Vec<Cull> {
+    let l = normalize(SUN);
+    let aspect = w as f32 / h as f32;
+    scene
+        .shapes
+        .iter()
+        .map(|s| {
+            let r = s.bounding_radius();
+            let rel = sub(s.position, cam.eye);
+            let (x, y, z) = (dot(rel, cam.right), dot(rel, cam.up), dot(rel, cam.forward));
+            let screen = if z - r > 1e-6 {
+                // x/z over the box [x ± r] × [z ± r] is extreme at its corners.
+                let range = |c: f32| {
+                    let v = [
+                        (c - r) / (z - r),
+                        (c - r) / (z + r),
+                        (c + r) / (z - r),
+                        (c + r) / (z + r),
+                    ];
+                    (
+                        v.iter().copied().fold(f32::MAX, f32::min),
+                        v.iter().copied().fold(f32::MIN, f32::max),
+                    )
+                };
+                let (sx0, sx1) = range(x);
+                let (sy0, sy1) = range(y);
+                let px = |sx: f32| (sx / (cam.tan_half * aspect) + 1.0) * 0.5 * w as f32;
+                let py = |sy: f32| (1.0 - sy / cam.tan_half) * 0.5 * h as f32;
+                [px(sx0) - 1.0, px(sx1) + 1.0, py(sy1) - 1.0, py(sy0) + 1.0]
+            } else {
+                [f32::MIN, f32::MAX, f32::MIN, f32::MAX]
+            };
+            let shadow = match scene.floor {
+                Some(f) => {
+                    // The ball's shadow along the sun: its centre's, widened by r / sin(sun).
+                    let k = (s.position[2] - f.height) / l[2];
+                    let (cx, cy) = (s.position[0] - l[0] * k, s.position[1] - l[1] * k);
+                    let rr = r / l[2] + 1e-3 * scene.extent;
+                    [cx - rr, cx + rr, cy - rr, cy + rr]
+                }
+                None => [f32::MIN, f32::MAX, f32::MIN, f32::MAX],
+            };
+            Cull { screen, shadow }
+        })
+        .collect()
+}
+
 /// Draws `scene` seen by `cam` as `w`×`h` RGB bytes, rows top to bottom.
 pub fn render(scene: &Scene, cam: &Camera, w: usize, h: usize) -> Vec<u8> {
     let mut out = vec![0u8; w * h * 3];
+    let culls = culls(scene, cam, w, h);
+    let culls = &culls;
     let threads = std::thread::available_parallelism()
         .map_or(1, |n| n.get())
         .clamp(1, 8);
@@ -226,8 +284,9 @@ pub fn render(scene: &Scene, cam: &Camera, w: usize, h: usize) -> Vec<u8> {
             sc.spawn(move || {
                 for (i, px) in rows.chunks_exact_mut(3).enumerate() {
                     let (x, y) = (i % w, chunk * rows_per + i / w);
-                    let d = cam.ray(x as f32 + 0.5, y as f32 + 0.5, w, h);
-                    px.copy_from_slice(&to_rgb(trace(scene, cam.eye, d)));
+                    let (fx, fy) = (x as f32 + 0.5, y as f32 + 0.5);
+                    let d = cam.ray(fx, fy, w, h);
+                    px.copy_from_slice(&to_rgb(trace(scene, culls, [fx, fy], cam.eye, d)));
                 }
             });
         }
@@ -238,18 +297,25 @@ pub fn render(scene: &Scene, cam: &Camera, w: usize, h: usize) -> Vec<u8> {
 /// Direction toward the sun: high, from the camera's side and the left.
 const SUN: V3 = [-0.35, -0.55, 0.76];
 
-fn shadowed(scene: &Scene, p: V3) -> bool {
+/// Whether `p` is in the shadow of a shape; `on_floor` points skip shapes whose shadow falls
+/// elsewhere.
+fn shadowed(scene: &Scene, culls: &[Cull], p: V3, on_floor: bool) -> bool {
     let l = normalize(SUN);
     let eps = 1e-4 * (1.0 + scene.extent);
-    scene
-        .shapes
-        .iter()
-        .any(|s| hit_shape(s, p, l, eps).is_some())
+    scene.shapes.iter().zip(culls).any(|(s, c)| {
+        let b = c.shadow;
+        (!on_floor || (p[0] >= b[0] && p[0] <= b[1] && p[1] >= b[2] && p[1] <= b[3]))
+            && hit_shape(s, p, l, eps).is_some()
+    })
 }
 
-fn trace(scene: &Scene, o: V3, d: V3) -> V3 {
+fn trace(scene: &Scene, culls: &[Cull], pixel: [f32; 2], o: V3, d: V3) -> V3 {
     let mut best: Option<(f32, V3, [u8; 3])> = None;
-    for s in &scene.shapes {
+    for (s, c) in scene.shapes.iter().zip(culls) {
+        let r = c.screen;
+        if pixel[0] < r[0] || pixel[0] > r[1] || pixel[1] < r[2] || pixel[1] > r[3] {
+            continue;
+        }
         if let Some((t, n)) = hit_shape(s, o, d, 0.0) {
             if best.is_none_or(|b| t < b.0) {
                 best = Some((t, n, s.color));
@@ -268,7 +334,9 @@ fn trace(scene: &Scene, o: V3, d: V3) -> V3 {
             let n = if dot(n, d) > 0.0 { scale(n, -1.0) } else { n };
             let p = add(o, scale(d, t));
             let lambert = dot(n, l).max(0.0);
-            let lit = if lambert > 0.0 && shadowed(scene, add(p, scale(n, 1e-3 * scene.extent))) {
+            let lit = if lambert > 0.0
+                && shadowed(scene, culls, add(p, scale(n, 1e-3 * scene.extent)), false)
+            {
                 0.0
             } else {
                 lambert
@@ -283,7 +351,11 @@ fn trace(scene: &Scene, o: V3, d: V3) -> V3 {
             let c = f.checker.max(1e-6);
             let parity = ((p[0] / c).floor() as i64 + (p[1] / c).floor() as i64).rem_euclid(2);
             let base = lin(f.colors[parity as usize]);
-            let lit = if shadowed(scene, p) { 0.55 } else { 1.0 };
+            let lit = if shadowed(scene, culls, p, true) {
+                0.55
+            } else {
+                1.0
+            };
             // The far floor fades into the horizon.
             let fade = (-t / (12.0 * scene.extent.max(1e-6))).exp();
             add(scale(base, lit * fade), scale(sky(d), 1.0 - fade))
@@ -378,7 +450,11 @@ mod tests {
         let l = normalize(SUN);
         let t = 0.4 / l[2];
         let under = [-l[0] * t, -l[1] * t, 0.0];
-        assert!(shadowed(&s, under));
-        assert!(!shadowed(&s, [3.0, 3.0, 0.0]));
+        let cam = Camera::looking_at(s.focus, s.extent, s.view);
+        let c = culls(&s, &cam, 64, 48);
+        for on_floor in [false, true] {
+            assert!(shadowed(&s, &c, under, on_floor));
+            assert!(!shadowed(&s, &c, [3.0, 3.0, 0.0], on_floor));
+        }
     }
 }
