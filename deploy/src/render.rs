@@ -207,7 +207,7 @@ fn run_inner(args: RenderArgs) -> Result<()> {
         )
     };
     let mut frames: Vec<Scene> = vec![env.scene().ok_or_else(no_scene)?];
-    let mut rng = rand_pcg::Pcg64::seed_from_u64(args.seed ^ 0x5eed_0f_ac71_0a5);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(args.seed ^ 0x5eed_fac7_10a5);
     let (mut ret, mut taken, mut success, mut ended) = (0.0, 0, None, "time limit");
     for t in 0..steps {
         let action: Vec<f32> = match &loaded {
