@@ -1,4 +1,5 @@
-//! `selkd`: run SELKD on this host (`selkd train`) and measure it (`selkd bench`).
+//! `selkd`: run SELKD on this host (`selkd train`), measure it (`selkd bench`), plot its
+//! curves (`selkd plot`) and watch a policy act (`selkd render`).
 //!
 //! `selkd train` starts one `learner` and K `actor-worker` processes (the binaries next to this
 //! one), shows a progress line, writes a run directory, restarts a worker that dies, and stops
@@ -6,6 +7,8 @@
 
 mod bench;
 mod plot;
+mod raycast;
+mod render;
 mod train;
 
 use clap::{Parser, Subcommand};
@@ -35,6 +38,8 @@ enum Command {
         #[arg(long, value_enum, default_value = "return")]
         metric: plot::Metric,
     },
+    /// Draw one episode of a trained actor (or of random actions) to a GIF or a PNG strip.
+    Render(render::RenderArgs),
     /// Benchmarks (commands, not tests).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -45,6 +50,7 @@ fn main() {
     let result = match cli.command {
         Command::Train(args) => train::run(args),
         Command::Bench(b) => bench::run(b).map(|()| 0),
+        Command::Render(args) => render::run(args).map(|()| 0),
         Command::Plot { runs, out, metric } => plot::run(&runs, out, metric).map(|p| {
             eprintln!("selkd: wrote {}", p.display());
             0

@@ -289,6 +289,14 @@ impl Ant {
 }
 
 impl Env for Ant {
+    fn scene(&self) -> Option<crate::scene::Scene> {
+        Some(crate::physics::robot_scene(&self.world, &self.robot))
+    }
+
+    fn control_dt(&self) -> Option<f64> {
+        Some(CONTROL_DT as f64)
+    }
+
     fn spec(&self) -> &EnvSpec {
         &self.spec
     }

@@ -1235,6 +1235,73 @@ impl Env for FpcAssembly {
             success: (terminated || truncated).then_some(success),
         }
     }
+
+    /// The board (a green checker floor), the connector housing (its convex blocks as boxes),
+    /// the strip's links (amber, the stiffener blue) and the gripper, which has no collider, as
+    /// two jaws on a wrist post. Millimetres; the camera frames the strip and the slot.
+    fn scene(&self) -> Option<crate::scene::Scene> {
+        use crate::physics::collider_shape;
+        use crate::scene::{colors, Floor, Scene, Shape, View};
+        let sc = &self.scene;
+        let w = &sc.world;
+        let tip_link = sc.links.last().copied();
+        let mut shapes = Vec::new();
+        for (_, c) in w.colliders.iter() {
+            let color = match c.parent() {
+                Some(b) if Some(b) == tip_link => colors::BLUE,
+                Some(b) if sc.links.contains(&b) => colors::AMBER,
+                _ => {
+                    // The board is the floor below: the one solid whose top is z = 0.
+                    if c.compute_aabb().maxs.z <= 1e-3 {
+                        continue;
+                    }
+                    colors::DARK
+                }
+            };
+            shapes.extend(collider_shape(c, color));
+        }
+        let g = w.bodies[sc.gripper].position();
+        let q = g.rotation;
+        let rotation = [q.w, q.x, q.y, q.z];
+        let at = |x: f32, y: f32, z: f32| {
+            let p = g.transform_point(Vector::new(x, y, z));
+            [p.x, p.y, p.z]
+        };
+        let y = self.params.grasp_lateral;
+        let t = self.cfg.strip_thickness_mm / 2.0;
+        for side in [-1.0, 1.0] {
+            shapes.push(Shape::cuboid(
+                at(-2.5, y, side * (t + 0.6)),
+                [2.5, 5.5, 0.6],
+                rotation,
+                colors::STEEL,
+            ));
+        }
+        shapes.push(Shape::capsule(
+            at(-2.5, y, t + 1.2),
+            at(-2.5, y, 16.0),
+            1.6,
+            colors::GREY,
+        ));
+        let reach = self.params.free_length + self.cfg.start_gap_mm[1];
+        let focus = sc.slot.transform_point(Vector::new(-0.6 * reach, 0.0, 3.0));
+        Some(Scene {
+            shapes,
+            floor: Some(Floor {
+                height: 0.0,
+                checker: 5.0,
+                colors: [[52, 120, 80], [40, 100, 66]],
+            }),
+            focus: [focus.x, focus.y, focus.z],
+            // The strip and the slot fill the picture; the wrist post may leave it.
+            extent: 0.75 * (reach + self.cfg.slot_depth_mm + 6.0),
+            view: View::ThreeQuarter,
+        })
+    }
+
+    fn control_dt(&self) -> Option<f64> {
+        Some(self.cfg.control_dt as f64)
+    }
 }
 
 #[cfg(test)]

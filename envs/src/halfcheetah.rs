@@ -240,6 +240,14 @@ impl HalfCheetah {
 }
 
 impl Env for HalfCheetah {
+    fn scene(&self) -> Option<crate::scene::Scene> {
+        Some(crate::physics::robot_scene(&self.world, &self.robot))
+    }
+
+    fn control_dt(&self) -> Option<f64> {
+        Some(CONTROL_DT as f64)
+    }
+
     fn spec(&self) -> &EnvSpec {
         &self.spec
     }

@@ -244,6 +244,14 @@ impl Env for Hopper {
             success: None,
         }
     }
+
+    fn scene(&self) -> Option<crate::scene::Scene> {
+        Some(crate::physics::robot_scene(&self.world, &self.robot))
+    }
+
+    fn control_dt(&self) -> Option<f64> {
+        Some(CONTROL_DT as f64)
+    }
 }
 
 #[cfg(test)]

@@ -703,6 +703,14 @@ impl Humanoid {
 }
 
 impl Env for Humanoid {
+    fn scene(&self) -> Option<crate::scene::Scene> {
+        Some(crate::physics::robot_scene(&self.world, &self.robot))
+    }
+
+    fn control_dt(&self) -> Option<f64> {
+        Some(CONTROL_DT as f64)
+    }
+
     fn spec(&self) -> &EnvSpec {
         &self.spec
     }

@@ -22,6 +22,7 @@ mod hopper;
 mod humanoid;
 mod pendulum;
 pub mod physics;
+pub mod scene;
 mod walker2d;
 
 pub use ant::{Ant, AntObs};
@@ -65,6 +66,15 @@ pub trait Env: Send {
     /// Advances one control step. Calling `step` after an episode ended, before `reset`, is a
     /// caller error; envs then keep stepping from the final state.
     fn step(&mut self, action: &[f32]) -> Step;
+    /// What is in the world now, for drawing (`selkd render`); `None` for an env that cannot
+    /// be drawn. A robot on [`physics`] implements it as `Some(physics::robot_scene(..))`.
+    fn scene(&self) -> Option<scene::Scene> {
+        None
+    }
+    /// Seconds of simulated time per `step` (frame timing of a rendered episode).
+    fn control_dt(&self) -> Option<f64> {
+        None
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -217,6 +227,28 @@ mod tests {
         assert_eq!(spec("ant-contacts").unwrap().obs_dim, 105);
         let err = make("pendulm").err().unwrap().to_string();
         assert!(err.contains("pendulm") && err.contains("pendulum"), "{err}");
+    }
+
+    #[test]
+    fn every_env_can_be_drawn() {
+        for n in names() {
+            let mut env = make(n).unwrap();
+            let dt = env.control_dt();
+            assert!(dt.is_some_and(|dt| dt > 0.0), "{n}: control_dt {dt:?}");
+            env.reset(Some(0));
+            let before = env.scene().unwrap_or_else(|| panic!("{n} has no scene"));
+            assert!(!before.shapes.is_empty() && before.extent > 0.0, "{n}");
+            env.step(&vec![0.5; env.spec().act_dim]);
+            let after = env.scene().unwrap_or_else(|| panic!("{n} has no scene"));
+            assert_eq!(before.shapes.len(), after.shapes.len(), "{n}");
+            assert_ne!(before.shapes, after.shapes, "{n}: a step moves something");
+            for s in before.shapes.iter().chain(&after.shapes) {
+                assert!(
+                    s.position.iter().chain(&s.rotation).all(|x| x.is_finite()),
+                    "{n}: {s:?}"
+                );
+            }
+        }
     }
 
     fn table(text: &str) -> EnvOptions {

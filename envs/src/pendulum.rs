@@ -132,6 +132,30 @@ impl Env for Pendulum {
             success: None,
         }
     }
+
+    /// Gymnasium's picture: a rod of length `L` on a pivot, upright at θ = 0 and turning
+    /// counter-clockwise as θ grows, seen from the side (here in the x–z plane, pivot 1.2 above
+    /// a floor so that the hanging rod clears it).
+    fn scene(&self) -> Option<crate::scene::Scene> {
+        use crate::scene::{colors, Floor, Scene, Shape, View};
+        let pivot = [0.0, 0.0, 1.2];
+        let (s, c) = (self.theta as f32).sin_cos();
+        let tip = [-(L as f32) * s, 0.0, pivot[2] + L as f32 * c];
+        Some(Scene {
+            shapes: vec![
+                Shape::capsule(pivot, tip, 0.1, colors::TORSO),
+                Shape::sphere([pivot[0], -0.06, pivot[2]], 0.07, colors::DARK),
+            ],
+            floor: Some(Floor::new(0.0, 0.5)),
+            focus: [0.0, 0.0, 1.1],
+            extent: 2.4,
+            view: View::Side,
+        })
+    }
+
+    fn control_dt(&self) -> Option<f64> {
+        Some(DT)
+    }
 }
 
 #[cfg(test)]

@@ -694,6 +694,99 @@ impl Articulation {
     }
 }
 
+/// A collider as a drawable [`crate::scene::Shape`] in the world frame: balls, capsules and
+/// cuboids as they are, convex polyhedra as their local bounding box (close enough to see);
+/// `None` for shapes with no solid to draw (half-spaces: see [`world_floor`]).
+pub fn collider_shape(c: &Collider, color: crate::scene::Color) -> Option<crate::scene::Shape> {
+    use crate::scene::Shape;
+    let pose = c.position();
+    let q = pose.rotation;
+    let rotation = [q.w, q.x, q.y, q.z];
+    let at = |v: Vector| [v.x, v.y, v.z];
+    let shape = c.shape();
+    if let Some(b) = shape.as_ball() {
+        Some(Shape::sphere(at(pose.translation), b.radius, color))
+    } else if let Some(cap) = shape.as_capsule() {
+        let a = pose.transform_point(cap.segment.a);
+        let b = pose.transform_point(cap.segment.b);
+        Some(Shape::capsule(at(a), at(b), cap.radius, color))
+    } else if let Some(cu) = shape.as_cuboid() {
+        Some(Shape::cuboid(
+            at(pose.translation),
+            at(cu.half_extents),
+            rotation,
+            color,
+        ))
+    } else if shape.as_halfspace().is_some() {
+        None
+    } else {
+        let aabb = shape.compute_local_aabb();
+        Some(Shape::cuboid(
+            at(pose.transform_point(aabb.center())),
+            at(aabb.half_extents()),
+            rotation,
+            color,
+        ))
+    }
+}
+
+/// The height of the world's ground: its first half-space collider facing +Z.
+pub fn world_floor(w: &PhysicsWorld) -> Option<f32> {
+    w.colliders.iter().find_map(|(_, c)| {
+        let h = c.shape().as_halfspace()?;
+        let n = c.position().rotation * h.normal;
+        (n.z > 0.99).then_some(c.position().translation.z)
+    })
+}
+
+/// The scene of a robot built with [`Articulation::build`]: every link's colliders, coloured
+/// per link ([`crate::scene::colors::link`]), the world's floor, the camera on the root link
+/// (at half the robot's height);
+/// a side view for a planar robot, a three-quarter view for a free one. Any robot on this
+/// module draws with `fn scene(&self) -> Option<Scene> { Some(physics::robot_scene(&self.world,
+/// &self.robot)) }`.
+pub fn robot_scene(world: &PhysicsWorld, robot: &Articulation) -> crate::scene::Scene {
+    use crate::scene::{colors, Floor, Scene, View};
+    let mut shapes = Vec::new();
+    for (i, cs) in robot.colliders.iter().enumerate() {
+        for &c in cs {
+            if let Some(s) = collider_shape(&world.colliders[c], colors::link(i)) {
+                shapes.push(s);
+            }
+        }
+    }
+    let root = robot.pose(world, 0).translation;
+    let floor = world_floor(world);
+    // The robot's size: the span of its shapes (from the floor up, if there is one).
+    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+    for s in &shapes {
+        let r = s.bounding_radius();
+        for k in 0..3 {
+            lo[k] = lo[k].min(s.position[k] - r);
+            hi[k] = hi[k].max(s.position[k] + r);
+        }
+    }
+    if let Some(h) = floor {
+        lo[2] = lo[2].min(h);
+    }
+    let extent = (0..3)
+        .map(|k| hi[k] - lo[k])
+        .filter(|x| x.is_finite())
+        .fold(0.1f32, f32::max);
+    Scene {
+        shapes,
+        floor: floor.map(|h| Floor::new(h, 0.5)),
+        // Above the root, halfway up the robot (from the floor): a camera aimed there sees it
+        // whole, feet and floor included.
+        focus: [root.x, root.y, (lo[2] + hi[2]) / 2.0],
+        extent,
+        view: match robot.root {
+            RootJoint::Planar => View::Side,
+            RootJoint::Free => View::ThreeQuarter,
+        },
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

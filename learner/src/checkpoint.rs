@@ -137,3 +137,96 @@ pub fn load(dir: &Path, selkd: &mut Selkd, replay: &mut ReplayBuffer) -> Result<
 pub fn adam_steps(s: &Selkd) -> [i64; 3] {
     [s.actor_opt.step, s.critic_opt.step, s.alpha_opt.step]
 }
+
+/// One actor of a checkpoint, ready to act without libtorch.
+pub struct LoadedActor {
+    pub actor: selkd_policy::Actor,
+    /// Which actor of the ensemble it is.
+    pub index: usize,
+    /// Actors in the checkpoint.
+    pub actors: usize,
+    /// The run's config, when `path` was a checkpoint directory (its `state.json`).
+    pub config: Option<Config>,
+}
+
+/// Loads actor `actor` (default: the checkpoint's best by its ranking, or 0 for a bare
+/// `model.safetensors`) from a checkpoint directory or a `model.safetensors` file. The network's
+/// shape is read from the tensors themselves. Act with [`selkd_policy::Actor::mean_action`]
+/// (`tanh(μ)`, as in evaluation).
+pub fn load_actor(path: &Path, actor: Option<usize>) -> Result<LoadedActor> {
+    let (model, state) = if path.is_dir() {
+        let state = path.join("state.json");
+        let state: Option<TrainingState> = if state.exists() {
+            let text = std::fs::read_to_string(&state)
+                .with_context(|| format!("reading {}", state.display()))?;
+            Some(
+                serde_json::from_str(&text)
+                    .with_context(|| format!("reading {}", state.display()))?,
+            )
+        } else {
+            None
+        };
+        (path.join("model.safetensors"), state)
+    } else {
+        (path.to_path_buf(), None)
+    };
+    if !model.exists() {
+        bail!(
+            "{} is not a checkpoint: no model.safetensors there; pass a directory under RUN/checkpoints/ or a model.safetensors file",
+            path.display()
+        );
+    }
+    let stored: HashMap<String, Tensor> = Tensor::read_safetensors(&model)
+        .with_context(|| format!("reading {}", model.display()))?
+        .into_iter()
+        .collect();
+    let mut layers = Vec::new();
+    while let (Some(w), Some(b)) = (
+        stored.get(&format!("actors.{}.weight", layers.len())),
+        stored.get(&format!("actors.{}.bias", layers.len())),
+    ) {
+        layers.push((w, b));
+    }
+    if layers.is_empty() {
+        bail!(
+            "{} holds no actor (no tensor `actors.0.weight`)",
+            model.display()
+        );
+    }
+    let k = layers[0].0.size()[0] as usize;
+    let index = match actor {
+        Some(i) => i,
+        None => state.as_ref().map_or(0, |s| s.ranking.best()),
+    };
+    if index >= k {
+        bail!(
+            "--actor {index}: the checkpoint has {k} actors (0 to {})",
+            k - 1
+        );
+    }
+    let dims: Vec<usize> = std::iter::once(layers[0].0.size()[1] as usize)
+        .chain(layers.iter().map(|(w, _)| w.size()[2] as usize))
+        .collect();
+    let out = *dims.last().expect("at least one layer");
+    let layout = selkd_policy::ActorLayout::new(dims[0], out / 2, &dims[1..dims.len() - 1]);
+    let parts: Vec<Tensor> = layers
+        .iter()
+        .flat_map(|(w, b)| {
+            [
+                w.get(index as i64).reshape([-1]),
+                b.get(index as i64).reshape([-1]),
+            ]
+        })
+        .collect();
+    let flat = Tensor::cat(&parts, 0)
+        .to_device(tch::Device::Cpu)
+        .to_kind(tch::Kind::Float);
+    let params = Vec::<f32>::try_from(&flat).context("actor weights as f32")?;
+    let actor = selkd_policy::Actor::from_flat(layout, params)?;
+    Ok(LoadedActor {
+        actor,
+        index,
+        actors: k,
+        config: state.map(|s| s.config),
+    })
+}

@@ -843,6 +843,19 @@ mod tests {
         let mut rb2 = ReplayBuffer::new(1000, 3, 2, Device::Cpu);
         checkpoint::load(&dir, &mut b, &mut rb2).unwrap();
         assert_eq!(rb2.len(), rb.len());
+        // One actor, loaded for acting (`selkd render`): its own weights; the best by default.
+        let one = checkpoint::load_actor(&dir, Some(1)).unwrap();
+        assert_eq!((one.index, one.actors), (1, 2));
+        let layout = one.actor.layout().clone();
+        let direct = selkd_policy::Actor::from_flat(layout, a.actor_weights(1)).unwrap();
+        let obs = [0.3, -0.2, 0.5];
+        assert_eq!(one.actor.mean_action(&obs), direct.mean_action(&obs));
+        assert_eq!(checkpoint::load_actor(&dir, None).unwrap().index, 0);
+        let e = checkpoint::load_actor(&dir, Some(2))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("2 actors"), "{e}");
         a.train_round(&mut rb, 1);
         b.train_round(&mut rb2, 1);
         for i in 0..2 {
