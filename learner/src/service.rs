@@ -468,6 +468,12 @@ impl Learner {
         let mut trained = false;
         loop {
             let evals_in = self.eval_reported.iter().all(|&e| e >= self.eval_epoch);
+            if evals_in {
+                // An epoch's row records the learner as it was when the epoch ended: write it
+                // before the next round, whose transitions may already be waiting (otherwise the
+                // row would depend on message timing, and sync runs would not reproduce).
+                self.log_epochs()?;
+            }
             if !evals_in
                 || self.pending.iter().any(|q| q.is_empty())
                 || self.inserted >= self.cfg.run.total_env_steps
