@@ -99,6 +99,12 @@ impl Learner {
             bail!("this build supports at most {MAX_ACTORS} actors and {MAX_HIDDEN_LAYERS} hidden layers");
         }
         let mut selkd = Selkd::new(&cfg.algo, spec.obs_dim, spec.act_dim, device, cfg.run.seed);
+        if cfg.algo.critic_matmul == crate::config::Precision::Bf16
+            && device == Device::Cpu
+            && !cpu_has_bf16()
+        {
+            tracing::warn!("algo.critic_matmul = \"bf16\" on a CPU without AVX-512 BF16: libtorch emulates it, many times slower than fp32; set algo.critic_matmul = \"fp32\"");
+        }
         let mut replay =
             ReplayBuffer::new(cfg.algo.replay_capacity, spec.obs_dim, spec.act_dim, device);
         let warmup_total = cfg.warmup_per_actor() * k as u64;
@@ -801,5 +807,17 @@ mod tests {
         let stored = Vec::<f32>::try_from(l.replay.export().select(1, 0)).unwrap();
         assert_eq!(stored, vec![0.0, 10.0], "actor 0's step, then actor 1's");
         let _ = std::fs::remove_dir_all(dir);
+    }
+}
+
+/// Whether this CPU multiplies bf16 natively (AVX-512 BF16; AMX implies it) (where `algo.critic_matmul = "bf16"` pays).
+fn cpu_has_bf16() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512bf16")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        true
     }
 }
