@@ -47,7 +47,11 @@ impl Adam {
                 // torch's p −= lr/b1 · m / (√v/√b2 + ε), rewritten as
                 // p −= (lr·√b2/b1) · m / (√v + ε·√b2) to need fewer temporaries.
                 let _ = m.lerp_(&g, 1.0 - self.beta1);
-                let _ = v.lerp_(&g.square(), 1.0 - self.beta2);
+                // β₂·v + (1 − β₂)·g², as PyTorch writes it: once a huge gradient has made v
+                // infinite, the next one keeps it infinite (the update goes to 0), where
+                // lerp's v + w·(g² − v) would give inf − inf = NaN and poison the weights.
+                let _ = v.g_mul_scalar_(self.beta2);
+                let _ = v.addcmul_(&g, &(&g * (1.0 - self.beta2)));
                 let mut denom = v.sqrt();
                 let _ = denom.g_add_scalar_(self.eps * bias2.sqrt());
                 let mut update = &*m / &denom;
@@ -87,5 +91,23 @@ mod tests {
         for k in 0..3 {
             assert!((got[k] as f64 - x[k]).abs() < 1e-5, "{got:?} vs {x:?}");
         }
+    }
+
+    /// Gradients so large that g² overflows f32 (the KD term toward a best actor whose σ sits
+    /// at the clamp can give them) must not turn the weights into NaN: the second moment stays
+    /// infinite and the step goes to zero, as in PyTorch.
+    #[test]
+    fn overflowing_gradients_do_not_make_nan() {
+        let p = Tensor::from_slice(&[1.0f32, 1.0]).set_requires_grad(true);
+        let mut opt = Adam::new(&[&p], 0.1);
+        let scale = Tensor::from_slice(&[1e30f32, 1.0]);
+        for _ in 0..3 {
+            (&p * &scale).sum(tch::Kind::Float).backward();
+            opt.step(&[&p]);
+        }
+        let got = Vec::<f32>::try_from(&p.detach()).unwrap();
+        assert!(got.iter().all(|x| x.is_finite()), "{got:?}");
+        // The ordinary coordinate still learns: three steps of about lr each.
+        assert!((got[1] - 0.7).abs() < 1e-3, "{got:?}");
     }
 }

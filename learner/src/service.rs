@@ -432,6 +432,9 @@ impl Learner {
                 tracing::warn!(
                     worker = w,
                     total = self.dropped_nonfinite,
+                    field = self
+                        .row
+                        .field_of(row.iter().position(|v| !v.is_finite()).unwrap_or(0)),
                     "dropped a transition with a NaN or infinite value (never stored)"
                 );
             }

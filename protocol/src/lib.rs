@@ -102,6 +102,17 @@ impl TransitionRow {
         out.push(terminated as u8 as f32);
         out.push(truncated as u8 as f32);
     }
+    /// Which part of a row index `i` falls in: `s[j]`, `a[j]`, `r`, `s'[j]` or a flag.
+    pub fn field_of(&self, i: usize) -> String {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        match i {
+            i if i < o => format!("s[{i}]"),
+            i if i < o + a => format!("a[{}]", i - o),
+            i if i == o + a => "r".to_string(),
+            i if i < 2 * o + a + 1 => format!("s'[{}]", i - o - a - 1),
+            _ => "flags".to_string(),
+        }
+    }
     /// `(s, a, r, s', terminated, truncated)` views into a row of the right length.
     pub fn split<'a>(&self, row: &'a [f32]) -> (&'a [f32], &'a [f32], f32, &'a [f32], bool, bool) {
         let (o, a) = (self.obs_dim, self.act_dim);
