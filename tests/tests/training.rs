@@ -180,3 +180,45 @@ fn fpc_assembly_trains_end_to_end_and_reports_success_rates() {
     assert!(dir.join("success.svg").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn every_locomotion_task_trains_through_the_real_processes_without_losing_data() {
+    // Two actors on each physics task: KD is on, and the humanoid's observation holds values in
+    // the thousands (contact forces), which once made NaN weights and NaN actions. Every
+    // transition must be stored and the losses must stay finite.
+    for env in [
+        "hopper",
+        "walker2d",
+        "halfcheetah",
+        "ant-contacts",
+        "humanoid",
+    ] {
+        let dir = temp_dir(env);
+        let sets = small_run(&[
+            &format!("run.env={env}"),
+            "algo.actors=2",
+            "algo.hidden=[64,64]",
+            "run.total_env_steps=1200",
+        ]);
+        let out = run(train(&dir, &sets));
+        assert_success(&out, &dir);
+        let (h, rows) = metrics(&dir);
+        assert!(!rows.is_empty(), "{env}: no metrics rows");
+        assert!(
+            column(&h, &rows, "dropped").iter().all(|&d| d == 0.0),
+            "{env}: transitions dropped: {}",
+            log(&dir, "learner.log")
+        );
+        for col in [
+            "critic_loss",
+            "q_mean",
+            "alpha_0",
+            "alpha_1",
+            "eval_return_0",
+        ] {
+            let v = column(&h, &rows, col);
+            assert!(v.iter().all(|x| x.is_finite()), "{env}: {col} = {v:?}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
