@@ -731,6 +731,19 @@ fn same_control(a: &Control, b: &Control) -> bool {
         && a.budget == b.budget
 }
 
+/// Whether this CPU multiplies bf16 natively (AVX-512 BF16), where `algo.critic_matmul = "bf16"`
+/// pays; elsewhere libtorch emulates it.
+fn cpu_has_bf16() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512bf16")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        true
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -810,17 +823,5 @@ mod tests {
         let stored = Vec::<f32>::try_from(l.replay.export().select(1, 0)).unwrap();
         assert_eq!(stored, vec![0.0, 10.0], "actor 0's step, then actor 1's");
         let _ = std::fs::remove_dir_all(dir);
-    }
-}
-
-/// Whether this CPU multiplies bf16 natively (AVX-512 BF16; AMX implies it) (where `algo.critic_matmul = "bf16"` pays).
-fn cpu_has_bf16() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx512bf16")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        true
     }
 }
