@@ -16,6 +16,9 @@ pub enum BenchCommand {
         name: String,
         #[arg(long, default_value_t = 20_000)]
         steps: usize,
+        /// The env's options as JSON or TOML, e.g. `"substeps = 5"` for a robot's physics.
+        #[arg(long)]
+        env_options: Option<String>,
     },
 }
 
@@ -100,8 +103,16 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             );
             println!("{:.2} updates/s", r.critic_updates_per_sec);
         }
-        BenchCommand::Env { name, steps } => {
-            let mut env = selkd_envs::make(&name)?;
+        BenchCommand::Env {
+            name,
+            steps,
+            env_options,
+        } => {
+            let options = match env_options {
+                Some(text) => crate::render::parse_env_options(&text)?,
+                None => Default::default(),
+            };
+            let mut env = selkd_envs::make_with(&name, &options)?;
             let act = env.spec().act_dim;
             let mut rng = rand_pcg::Pcg64::seed_from_u64(0);
             env.reset(Some(0));

@@ -90,7 +90,8 @@ fn format_of(out: &Path) -> Result<Format> {
     }
 }
 
-fn parse_env_options(text: &str) -> Result<EnvOptions> {
+/// `--env-options` as JSON (`{"g": 12.0}`) or TOML (`g = 12.0`).
+pub fn parse_env_options(text: &str) -> Result<EnvOptions> {
     if text.trim_start().starts_with('{') {
         serde_json::from_str(text)
             .map_err(|e| anyhow!("--env-options is not a JSON object of options: {e}"))

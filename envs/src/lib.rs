@@ -100,20 +100,30 @@ const REGISTRY: &[(&str, Constructor)] = &[
         check("pendulum", options.validate())?;
         Ok(Box::new(Pendulum::with_options(&options)))
     }),
-    ("hopper", |o| without_options("hopper", o, Hopper::new)),
+    ("hopper", |o| {
+        let sim = physics_options("hopper", o, hopper::SIM)?;
+        Ok(Box::new(Hopper::with_sim(sim)))
+    }),
     ("walker2d", |o| {
-        without_options("walker2d", o, Walker2d::new)
+        let sim = physics_options("walker2d", o, walker2d::SIM)?;
+        Ok(Box::new(Walker2d::with_sim(sim)))
     }),
     ("halfcheetah", |o| {
-        without_options("halfcheetah", o, HalfCheetah::new)
+        let sim = physics_options("halfcheetah", o, halfcheetah::SIM)?;
+        Ok(Box::new(HalfCheetah::with_sim(sim)))
     }),
-    ("ant", |o| without_options("ant", o, Ant::new)),
+    ("ant", |o| {
+        let sim = physics_options("ant", o, ant::SIM)?;
+        Ok(Box::new(Ant::with_sim(AntObs::State, sim)))
+    }),
     ("ant-contacts", |o| {
-        without_options("ant-contacts", o, Ant::with_contacts)
+        let sim = physics_options("ant-contacts", o, ant::SIM)?;
+        Ok(Box::new(Ant::with_sim(AntObs::WithContacts, sim)))
     }),
     ("humanoid", |o| {
         let options: HumanoidOptions = parse_options("humanoid", o)?;
-        Ok(Box::new(Humanoid::with_options(&options)))
+        let sim = check("humanoid", options.physics().apply(humanoid::SIM))?;
+        Ok(Box::new(Humanoid::with_sim(&options, sim)))
     }),
     ("fpc-assembly", |o| {
         let config: FpcConfig = parse_options("fpc-assembly", o)?;
@@ -139,26 +149,22 @@ fn parse_options<T: serde::de::DeserializeOwned>(
         })
 }
 
-fn check(env: &str, valid: Result<(), String>) -> Result<(), EnvError> {
+/// A robot's physics settings: its `default`, overridden by the `substeps` and
+/// `solver_iterations` keys of `options` (its only keys).
+fn physics_options(
+    env: &str,
+    options: &EnvOptions,
+    default: physics::SimParams,
+) -> Result<physics::SimParams, EnvError> {
+    let overrides: physics::PhysicsOptions = parse_options(env, options)?;
+    check(env, overrides.apply(default))
+}
+
+fn check<T>(env: &str, valid: Result<T, String>) -> Result<T, EnvError> {
     valid.map_err(|message| EnvError::Options {
         env: env.into(),
         message,
     })
-}
-
-/// The constructor of an env that has no options: any option is an error.
-fn without_options<E: Env + 'static>(
-    env: &str,
-    options: &EnvOptions,
-    new: fn() -> E,
-) -> Result<Box<dyn Env>, EnvError> {
-    match options.keys().next() {
-        None => Ok(Box::new(new())),
-        Some(key) => Err(EnvError::Options {
-            env: env.into(),
-            message: format!("`{env}` takes no options, but `{key}` was given"),
-        }),
-    }
 }
 
 /// The registry names, in order.
@@ -312,8 +318,50 @@ mod tests {
         let e = err("pendulum", "g = -1.0");
         assert!(e.contains("g = -1 must be a positive number"), "{e}");
         let e = err("hopper", "g = 1.0");
-        assert!(e.contains("takes no options") && e.contains("`g`"), "{e}");
+        assert!(
+            e.contains("env_options for `hopper`") && e.contains("`g`"),
+            "{e}"
+        );
+        assert!(e.contains("substeps"), "names the keys there are: {e}");
         assert!(!e.contains('\n'));
+        // The robots' physics settings are options, each checked.
+        for name in [
+            "hopper",
+            "walker2d",
+            "halfcheetah",
+            "ant",
+            "ant-contacts",
+            "humanoid",
+        ] {
+            let e = err(name, "substeps = 0");
+            assert!(
+                e.contains(name) && e.contains("`substeps` must be 1 to 64, got 0"),
+                "{e}"
+            );
+            let e = err(name, "solver_iterations = 65");
+            assert!(
+                e.contains("`solver_iterations` must be 1 to 64, got 65"),
+                "{e}"
+            );
+            assert!(make_with(name, &table("substeps = 3\nsolver_iterations = 2")).is_ok());
+        }
+        // ... and applied: the cheetah's own setting spelled out repeats its default episode;
+        // another setting gives another one.
+        let episode = |opts: &str| {
+            let mut env = make_with("halfcheetah", &table(opts)).unwrap();
+            env.reset(Some(0));
+            (0..20).map(|_| env.step(&[0.5; 6]).obs).collect::<Vec<_>>()
+        };
+        let default = episode("");
+        let (sub, it) = (
+            halfcheetah::SIM.substeps,
+            halfcheetah::SIM.solver_iterations,
+        );
+        assert_eq!(
+            default,
+            episode(&format!("substeps = {sub}\nsolver_iterations = {it}"))
+        );
+        assert_ne!(default, episode(&format!("substeps = {}", sub + 3)));
         // fpc-assembly's tolerances are options: read, and checked by the env.
         let e = err("fpc-assembly", "lateral_tol_mm = -0.1");
         assert!(

@@ -50,6 +50,43 @@ pub struct SimParams {
     pub solver_iterations: usize,
 }
 
+/// A user's override of a robot's [`SimParams`] (the keys `substeps` and `solver_iterations`
+/// of a run's `[env_options]`): trade speed for integration accuracy. Unset keys keep the
+/// robot's own choice, documented at each robot's `SIM`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PhysicsOptions {
+    /// Rapier steps per control step.
+    pub substeps: Option<usize>,
+    /// Rapier solver iterations per step.
+    pub solver_iterations: Option<usize>,
+}
+
+/// The most of either [`PhysicsOptions`] key: beyond it a control step takes seconds.
+pub const MAX_PHYSICS_STEPS: usize = 64;
+
+impl PhysicsOptions {
+    /// `default` with these overrides, or a message naming the bad key.
+    pub fn apply(&self, default: SimParams) -> Result<SimParams, String> {
+        let check = |key: &str, value: Option<usize>, default: usize| match value {
+            None => Ok(default),
+            Some(n) if (1..=MAX_PHYSICS_STEPS).contains(&n) => Ok(n),
+            Some(n) => Err(format!(
+                "`{key}` must be 1 to {MAX_PHYSICS_STEPS}, got {n} (the default is {default})"
+            )),
+        };
+        Ok(SimParams {
+            control_dt: default.control_dt,
+            substeps: check("substeps", self.substeps, default.substeps)?,
+            solver_iterations: check(
+                "solver_iterations",
+                self.solver_iterations,
+                default.solver_iterations,
+            )?,
+        })
+    }
+}
+
 /// A new world: gravity −Z, the time step and solver settings of `p`.
 pub fn new_world(p: &SimParams) -> PhysicsWorld {
     let mut w = PhysicsWorld::new();

@@ -462,7 +462,11 @@ mod tests {
             e.contains("env_options for `pendulum`") && e.contains("gravity"),
             "{e}"
         );
-        assert!(err("", &["run.env=hopper", "env_options.g=3"]).contains("takes no options"));
+        let e = err("", &["run.env=hopper", "env_options.g=3"]);
+        assert!(
+            e.contains("`hopper`") && e.contains("unknown field `g`"),
+            "{e}"
+        );
         for e in [
             err("", &["algo.subset=11"]),
             err("[algo]\ncritcs = 3\n", &[]),
