@@ -39,11 +39,10 @@
 //! from within its 0.01 m contact margin).
 //!
 //! Measured (this 2-core machine shared with other jobs, load average 4–6, same sitting):
-//! - Speed, `selkd bench env`: `ant` 1.07k–1.36k, `ant-contacts` 1.35k–1.70k env steps/s (the
-//!   two differ by noise only: the contact terms are computed for the reward in both);
-//!   Gymnasium `Ant-v5` (MuJoCo, single thread, random actions): 1.54k–1.69k steps/s with the
-//!   105-dim observation, 1.76k–2.26k with the 27-dim one. So about 0.6–0.9× MuJoCo's speed
-//!   here; rapier's 5 multibody steps per control step dominate.
+//! - Speed, `selkd bench env ant` against Gymnasium `Ant-v5` (MuJoCo, its default 105-dim
+//!   observation, single thread, random actions), three sittings interleaved: 3.64k/2.45k,
+//!   2.97k/2.29k, 4.09k/2.80k env steps/s, 1.3–1.5×. `ant-contacts` costs the same (the contact
+//!   terms are computed for the reward in both).
 //! - Mass 0.91088 kg, as MuJoCo's. Standing (zero action, 200 steps from seed 0): torso z
 //!   0.363 m; MuJoCo 0.382 m. Standing still, the vertical contact forces sum to 98% of m·g after
 //!   200 steps (MuJoCo: 100%).

@@ -63,9 +63,10 @@
 //!   contact cost differs in transients; while the PD stance holds, the vertical contact
 //!   force averages the weight (413 N) within 10%, and each step's vertical contact force
 //!   matches the robot's momentum change (`tests::cfrc_ext_is_zero_in_the_air_and_carries_the_weight`).
-//! - Speed (`selkd bench env humanoid`, random actions, one thread, resets included) on the
-//!   shared 2-core machine under load (load average ~7), same sitting: ours 870–1010 env
-//!   steps/s, Gymnasium `Humanoid-v5` 580–730 steps/s (1.9k unloaded earlier that day).
+//! - Speed (`selkd bench env humanoid`, random actions, one thread, resets included) against
+//!   Gymnasium `Humanoid-v5`, three sittings interleaved on the shared 2-core machine:
+//!   2.20k/2.62k, 1.73k/1.97k, 2.37k/2.48k env steps/s, 0.84–0.96× (see [`SIM`] for why the
+//!   cheaper settings were not taken).
 
 use crate::physics::{
     add_floor, colliders_contact_wrench, new_world, Articulation, Geom, LinkDesc, RootJoint,
