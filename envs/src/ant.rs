@@ -59,7 +59,7 @@
 //! emits NaN.
 
 use crate::physics::{
-    add_floor, colliders_contact_wrench, new_world, Articulation, Geom, LinkDesc, RootJoint,
+    add_floor, colliders_contact_wrench, new_world, Articulation, Geom, LinkDesc, Robot, RootJoint,
     SimParams,
 };
 use crate::{Env, EnvSpec, Step};
@@ -187,9 +187,7 @@ pub enum AntObs {
 pub struct Ant {
     spec: EnvSpec,
     obs_kind: AntObs,
-    sim: SimParams,
-    world: PhysicsWorld,
-    robot: Articulation,
+    robot: Robot,
     /// The colliders of each MuJoCo body that reports contact forces, in MuJoCo's order.
     contact_bodies: Vec<Vec<ColliderHandle>>,
     t: usize,
@@ -202,13 +200,17 @@ impl Default for Ant {
     }
 }
 
-fn build(sim: &SimParams) -> (PhysicsWorld, Articulation, Vec<Vec<ColliderHandle>>) {
+fn build(sim: &SimParams) -> (PhysicsWorld, Articulation) {
     let mut world = new_world(sim);
     world.integration_parameters.normalized_prediction_distance = PREDICTION_DISTANCE;
     add_floor(&mut world, 1.0);
     let robot = Articulation::build(&mut world, RootJoint::Free, &links());
-    // MuJoCo's bodies: torso (the sphere), then per leg its welded capsule (a torso collider),
-    // the hip link and the ankle link.
+    (world, robot)
+}
+
+/// The colliders of MuJoCo's bodies: torso (the sphere), then per leg its welded capsule (a
+/// torso collider), the hip link and the ankle link.
+fn contact_bodies(robot: &Articulation) -> Vec<Vec<ColliderHandle>> {
     let torso = robot.colliders(0);
     let mut bodies = vec![vec![torso[0]]];
     for k in 0..4 {
@@ -216,7 +218,7 @@ fn build(sim: &SimParams) -> (PhysicsWorld, Articulation, Vec<Vec<ColliderHandle
         bodies.push(robot.colliders(1 + 2 * k).to_vec());
         bodies.push(robot.colliders(2 + 2 * k).to_vec());
     }
-    (world, robot, bodies)
+    bodies
 }
 
 impl Ant {
@@ -237,7 +239,7 @@ impl Ant {
     /// The ant with other physics settings (`control_dt` must stay [`SIM`]'s 0.05 s).
     pub fn with_sim(obs_kind: AntObs, sim: SimParams) -> Self {
         assert_eq!(sim.control_dt, CONTROL_DT);
-        let (world, robot, contact_bodies) = build(&sim);
+        let robot = Robot::new(sim, build);
         let (id, obs_dim) = match obs_kind {
             AntObs::State => ("ant", OBS_DIM),
             AntObs::WithContacts => ("ant-contacts", OBS_DIM_CONTACTS),
@@ -250,10 +252,8 @@ impl Ant {
                 max_episode_steps: 1000,
             },
             obs_kind,
-            sim,
-            world,
+            contact_bodies: contact_bodies(&robot.links),
             robot,
-            contact_bodies,
             t: 0,
             rng: Pcg64::seed_from_u64(0),
         }
@@ -261,15 +261,10 @@ impl Ant {
 
     /// Starts an episode from a given state (MuJoCo's `qpos`/`qvel` layout) in a fresh world.
     pub fn set_state(&mut self, qpos: &[f32; NQ], qvel: &[f32; NV]) -> Vec<f32> {
-        // A fresh world per episode: no contact or solver cache carries over, so an episode
-        // depends only on its seed and actions.
-        let (mut world, robot, contact_bodies) = build(&self.sim);
-        robot.set_state(&mut world, qpos, qvel);
-        self.world = world;
-        self.robot = robot;
-        self.contact_bodies = contact_bodies;
+        self.robot.restart(qpos, qvel);
+        self.contact_bodies = contact_bodies(&self.robot.links);
         self.t = 0;
-        if !self.robot.is_sane(&self.world) {
+        if !self.robot.is_sane() {
             return vec![0.0; self.spec.obs_dim];
         }
         let contacts = self.contact_forces();
@@ -277,25 +272,25 @@ impl Ant {
     }
 
     pub fn qpos(&self) -> Vec<f32> {
-        self.robot.qpos(&self.world)
+        self.robot.qpos()
     }
 
     pub fn qvel(&self) -> Vec<f32> {
-        self.robot.qvel(&self.world)
+        self.robot.qvel()
     }
 
     /// Total mass, kg.
     pub fn mass(&self) -> f32 {
-        self.robot.mass(&self.world)
+        self.robot.mass()
     }
 
     /// MuJoCo's `cfrc_ext[1:]` from the last rapier step, unclipped: 13 bodies × `[torque;
     /// force]`, world frame, about the robot's centre of mass.
     pub fn contact_forces(&self) -> Vec<[f32; 6]> {
-        let com = self.robot.center_of_mass(&self.world);
+        let com = self.robot.links.center_of_mass(&self.robot.world);
         self.contact_bodies
             .iter()
-            .map(|cs| colliders_contact_wrench(&self.world, cs, com))
+            .map(|cs| colliders_contact_wrench(&self.robot.world, cs, com))
             .collect()
     }
 
@@ -312,7 +307,7 @@ impl Ant {
 
 impl Env for Ant {
     fn scene(&self) -> Option<crate::scene::Scene> {
-        Some(crate::physics::robot_scene(&self.world, &self.robot))
+        Some(self.robot.scene())
     }
 
     fn control_dt(&self) -> Option<f64> {
@@ -357,14 +352,11 @@ impl Env for Ant {
             torques[link - 1] = a[k] * GEAR;
         }
         let x_before = self.qpos()[0];
-        for _ in 0..self.sim.substeps {
-            self.robot.apply_joint_torques(&mut self.world, &torques);
-            self.world.step();
-        }
+        self.robot.step(&torques);
         self.t += 1;
         let truncated = self.t >= self.spec.max_episode_steps;
         let ctrl_cost = CTRL_COST_WEIGHT * a.iter().map(|x| (*x as f64).powi(2)).sum::<f64>();
-        if !self.robot.is_sane(&self.world) {
+        if !self.robot.is_sane() {
             return Step {
                 obs: vec![0.0; self.spec.obs_dim],
                 reward: -ctrl_cost,
@@ -669,24 +661,26 @@ mod tests {
         let mut env = Ant::with_contacts();
         // Σ m·v over the links, from the links' kinematic velocities and centres of mass.
         let momentum = |env: &Ant| {
-            let vels = env.robot.link_velocities(&env.world);
-            let bodies = env.robot.bodies.iter().zip(vels);
+            let vels = env.robot.links.link_velocities(&env.robot.world);
+            let bodies = env.robot.links.bodies.iter().zip(vels);
             bodies.fold(rapier3d::prelude::Vector::ZERO, |p, (&h, (w, v))| {
-                let rb = &env.world.bodies[h];
+                let rb = &env.robot.world.bodies[h];
                 let o = rb.position().translation;
                 let c = rb.position().transform_point(rb.local_center_of_mass());
                 p + (v + w.cross(c - o)) * rb.mass()
             })
         };
-        let dt = env.world.integration_parameters.dt;
+        let dt = env.robot.world.integration_parameters.dt;
         let (mut errors, mut off) = (vec![], 0);
         for seed in 0..20 {
             env.reset(Some(seed));
             for a in random_actions::<8>(seed + 7, 40) {
                 let torques = a.map(|x| GEAR * x);
                 let p0 = momentum(&env);
-                env.robot.apply_joint_torques(&mut env.world, &torques);
-                env.world.step();
+                env.robot
+                    .links
+                    .apply_joint_torques(&mut env.robot.world, &torques);
+                env.robot.world.step();
                 let want = (momentum(&env) - p0).z / dt + 9.81 * env.mass();
                 let fz: f32 = env.contact_forces().iter().map(|w| w[5]).sum();
                 if fz > 0.0 {
@@ -741,9 +735,9 @@ mod tests {
                 for (j, [lo, hi]) in ranges.iter().enumerate() {
                     overshoot = overshoot.max(lo - q[7 + j]).max(q[7 + j] - hi);
                 }
-                for i in 0..env.robot.num_links() {
-                    for &c in env.robot.colliders(i) {
-                        let col = &env.world.colliders[c];
+                for i in 0..env.robot.links.num_links() {
+                    for &c in env.robot.links.colliders(i) {
+                        let col = &env.robot.world.colliders[c];
                         let p = col.position();
                         if let Some(cap) = col.shape().as_capsule() {
                             let z = (p * cap.segment.a).z.min((p * cap.segment.b).z);

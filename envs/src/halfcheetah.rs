@@ -35,7 +35,7 @@
 //! zero observation: the env never emits NaN (the only termination).
 
 use crate::physics::{
-    add_floor, new_world, set_total_mass, Articulation, Geom, LinkDesc, RootJoint, SimParams,
+    add_floor, new_world, set_total_mass, Articulation, Geom, LinkDesc, Robot, RootJoint, SimParams,
 };
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
@@ -160,9 +160,7 @@ pub fn links() -> Vec<LinkDesc> {
 
 pub struct HalfCheetah {
     spec: EnvSpec,
-    sim: SimParams,
-    world: PhysicsWorld,
-    robot: Articulation,
+    robot: Robot,
     t: usize,
     rng: Pcg64,
 }
@@ -189,17 +187,14 @@ impl HalfCheetah {
     /// The cheetah with other physics settings (`control_dt` must stay [`SIM`]'s 0.05 s).
     pub fn with_sim(sim: SimParams) -> Self {
         assert_eq!(sim.control_dt, CONTROL_DT);
-        let (world, robot) = build(&sim);
         Self {
-            sim,
             spec: EnvSpec {
                 id: "halfcheetah",
                 obs_dim: OBS_DIM,
                 act_dim: NA,
                 max_episode_steps: 1000,
             },
-            world,
-            robot,
+            robot: Robot::new(sim, build),
             t: 0,
             rng: Pcg64::seed_from_u64(0),
         }
@@ -208,32 +203,27 @@ impl HalfCheetah {
     /// Starts an episode from a given state in MuJoCo's coordinates (`qpos` = [x, z − 0.7,
     /// pitch, 6 hinge angles], `qvel` the matching velocities) in a fresh world.
     pub fn set_state(&mut self, qpos: &[f32; NQ], qvel: &[f32; NQ]) -> Vec<f32> {
-        // A fresh world per episode: no contact or solver cache carries over, so an episode
-        // depends only on its seed and actions.
-        let (mut world, robot) = build(&self.sim);
         let mut q = *qpos;
         q[1] += INIT_Z;
-        robot.set_state(&mut world, &q, qvel);
-        self.world = world;
-        self.robot = robot;
+        self.robot.restart(&q, qvel);
         self.t = 0;
         self.obs(&self.qpos(), &self.qvel())
     }
 
     /// MuJoCo's `qpos`: [x, z − 0.7, pitch, 6 hinge angles].
     pub fn qpos(&self) -> Vec<f32> {
-        let mut q = self.robot.qpos(&self.world);
+        let mut q = self.robot.qpos();
         q[1] -= INIT_Z;
         q
     }
 
     pub fn qvel(&self) -> Vec<f32> {
-        self.robot.qvel(&self.world)
+        self.robot.qvel()
     }
 
     /// Total mass, kg.
     pub fn mass(&self) -> f32 {
-        self.robot.mass(&self.world)
+        self.robot.mass()
     }
 
     fn obs(&self, q: &[f32], v: &[f32]) -> Vec<f32> {
@@ -253,7 +243,7 @@ impl HalfCheetah {
 
 impl Env for HalfCheetah {
     fn scene(&self) -> Option<crate::scene::Scene> {
-        Some(crate::physics::robot_scene(&self.world, &self.robot))
+        Some(self.robot.scene())
     }
 
     fn control_dt(&self) -> Option<f64> {
@@ -287,14 +277,11 @@ impl Env for HalfCheetah {
             *t *= g;
         }
         let x_before = self.qpos()[0];
-        for _ in 0..self.sim.substeps {
-            self.robot.apply_joint_torques(&mut self.world, &torques);
-            self.world.step();
-        }
+        self.robot.step(&torques);
         self.t += 1;
         let truncated = self.t >= self.spec.max_episode_steps;
         let ctrl_cost = CTRL_COST_WEIGHT * a.iter().map(|x| (*x as f64).powi(2)).sum::<f64>();
-        if !self.robot.is_sane(&self.world) {
+        if !self.robot.is_sane() {
             return Step {
                 obs: vec![0.0; OBS_DIM],
                 reward: -ctrl_cost,
@@ -476,9 +463,9 @@ mod tests {
                         o.max(ranges[j][0] - q[j]).max(q[j] - ranges[j][1])
                     });
                     overshoots.push(o);
-                    for i in 0..env.robot.num_links() {
-                        for &c in env.robot.colliders(i) {
-                            let col = &env.world.colliders[c];
+                    for i in 0..env.robot.links.num_links() {
+                        for &c in env.robot.links.colliders(i) {
+                            let col = &env.robot.world.colliders[c];
                             let cap = col.shape().as_capsule().unwrap();
                             let p = col.position();
                             let z = (p * cap.segment.a).z.min((p * cap.segment.b).z);

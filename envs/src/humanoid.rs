@@ -69,7 +69,7 @@
 //!   cheaper settings were not taken).
 
 use crate::physics::{
-    add_floor, colliders_contact_wrench, new_world, Articulation, Geom, LinkDesc, RootJoint,
+    add_floor, colliders_contact_wrench, new_world, Articulation, Geom, LinkDesc, Robot, RootJoint,
     SimParams,
 };
 use crate::{Env, EnvSpec, Step};
@@ -482,9 +482,7 @@ struct BodyInertia {
 pub struct Humanoid {
     spec: EnvSpec,
     options: HumanoidOptions,
-    sim: SimParams,
-    world: PhysicsWorld,
-    robot: Articulation,
+    robot: Robot,
     bodies: Vec<BodyInertia>,
     /// MuJoCo's torso origin in the torso link's frame.
     torso_origin: Vector,
@@ -546,8 +544,8 @@ impl Humanoid {
     /// The humanoid with other physics settings (`control_dt` must stay [`SIM`]'s 0.015 s).
     pub fn with_sim(options: &HumanoidOptions, sim: SimParams) -> Self {
         assert_eq!(sim.control_dt, CONTROL_DT);
-        let (world, robot) = build(&sim);
-        let bodies = body_inertias(&world, &robot);
+        let robot = Robot::new(sim, build);
+        let bodies = body_inertias(&robot.world, &robot.links);
         let com = torso_com();
         let torso_origin = Vector::new(-com[0], -com[1], INIT_Z - com[2]);
         Self {
@@ -558,8 +556,6 @@ impl Humanoid {
                 max_episode_steps: 1000,
             },
             options: options.clone(),
-            sim,
-            world,
             robot,
             bodies,
             torso_origin,
@@ -573,9 +569,6 @@ impl Humanoid {
     /// torso's angular velocity in its own frame) in a fresh world.
     pub fn set_state(&mut self, qpos: &[f32], qvel: &[f32]) -> Vec<f32> {
         assert!(qpos.len() == NQ && qvel.len() == NV);
-        // A fresh world per episode: no contact or solver cache carries over, so an episode
-        // depends only on its seed and actions.
-        let (mut world, robot) = build(&self.sim);
         let rot = Rotation::from_xyzw(qpos[4], qpos[5], qpos[6], qpos[3]).normalize();
         // From the torso origin to the torso's centre of mass (the link origin), world frame.
         let r = rot * -self.torso_origin;
@@ -586,9 +579,7 @@ impl Humanoid {
         }
         let v_com = Vector::new(qvel[0], qvel[1], qvel[2]) + w_world.cross(r);
         v[..3].copy_from_slice(&[v_com.x, v_com.y, v_com.z]);
-        robot.set_state(&mut world, &q, &v);
-        self.world = world;
-        self.robot = robot;
+        self.robot.restart(&q, &v);
         self.ctrl = [0.0; NU];
         self.t = 0;
         self.obs()
@@ -596,8 +587,8 @@ impl Humanoid {
 
     /// MuJoCo's `qpos` (torso origin position and orientation, hinge angles).
     pub fn qpos(&self) -> Vec<f32> {
-        let mut q = self.robot.qpos(&self.world);
-        let rot = self.robot.pose(&self.world, 0).rotation;
+        let mut q = self.robot.qpos();
+        let rot = self.robot.pose(0).rotation;
         let o = rot * self.torso_origin;
         for k in 0..3 {
             q[k] += o[k];
@@ -608,8 +599,8 @@ impl Humanoid {
     /// MuJoCo's `qvel` (torso origin velocity, world frame; torso angular velocity, torso
     /// frame; hinge rates).
     pub fn qvel(&self) -> Vec<f32> {
-        let mut v = self.robot.qvel(&self.world);
-        let rot = self.robot.pose(&self.world, 0).rotation;
+        let mut v = self.robot.qvel();
+        let rot = self.robot.pose(0).rotation;
         let w_world = rot * Vector::new(v[3], v[4], v[5]);
         let lin = Vector::new(v[0], v[1], v[2]) + w_world.cross(rot * self.torso_origin);
         v[..3].copy_from_slice(&[lin.x, lin.y, lin.z]);
@@ -635,7 +626,7 @@ impl Humanoid {
         let xi: Vec<Vector> = self
             .bodies
             .iter()
-            .map(|b| self.robot.pose(&self.world, b.link).transform_point(b.com))
+            .map(|b| self.robot.pose(b.link).transform_point(b.com))
             .collect();
         let total = self.mass();
         let c = xi
@@ -657,10 +648,12 @@ impl Humanoid {
         BODIES
             .iter()
             .map(|&(_, link, geom)| match geom {
-                None => self.robot.contact_wrench(&self.world, link, c),
-                Some(g) => {
-                    colliders_contact_wrench(&self.world, &self.robot.colliders(link)[g..=g], c)
-                }
+                None => self.robot.links.contact_wrench(&self.robot.world, link, c),
+                Some(g) => colliders_contact_wrench(
+                    &self.robot.world,
+                    &self.robot.links.colliders(link)[g..=g],
+                    c,
+                ),
             })
             .collect()
     }
@@ -677,7 +670,7 @@ impl Humanoid {
         let (xi, c) = self.coms();
         if self.options.include_cinert {
             for (b, x) in self.bodies.iter().zip(&xi) {
-                let rot = Matrix::from_quat(self.robot.pose(&self.world, b.link).rotation);
+                let rot = Matrix::from_quat(self.robot.pose(b.link).rotation);
                 let i = rot * b.inertia * rot.transpose();
                 let d = *x - c;
                 let m = b.mass;
@@ -696,10 +689,10 @@ impl Humanoid {
             }
         }
         if self.options.include_cvel {
-            let vels = self.robot.link_velocities(&self.world);
+            let vels = self.robot.links.link_velocities(&self.robot.world);
             for b in &self.bodies {
                 let (w, v) = vels[b.link];
-                let lin = v + w.cross(c - self.robot.pose(&self.world, b.link).translation);
+                let lin = v + w.cross(c - self.robot.pose(b.link).translation);
                 o.extend([w.x, w.y, w.z, lin.x, lin.y, lin.z]);
             }
         }
@@ -726,7 +719,7 @@ impl Humanoid {
 
 impl Env for Humanoid {
     fn scene(&self) -> Option<crate::scene::Scene> {
-        Some(crate::physics::robot_scene(&self.world, &self.robot))
+        Some(self.robot.scene())
     }
 
     fn control_dt(&self) -> Option<f64> {
@@ -766,14 +759,11 @@ impl Env for Humanoid {
             torques[ACT_JOINT[k]] = GEAR[k] * ctrl[k];
         }
         let x_before = self.center_of_mass().x;
-        for _ in 0..self.sim.substeps {
-            self.robot.apply_joint_torques(&mut self.world, &torques);
-            self.world.step();
-        }
+        self.robot.step(&torques);
         self.t += 1;
         let truncated = self.t >= self.spec.max_episode_steps;
         let ctrl_cost = CTRL_COST_WEIGHT * ctrl.iter().map(|x| (*x as f64).powi(2)).sum::<f64>();
-        if !self.robot.is_sane(&self.world) {
+        if !self.robot.is_sane() {
             return Step {
                 obs: vec![0.0; self.spec.obs_dim],
                 reward: -ctrl_cost,
@@ -905,7 +895,7 @@ mod tests {
         }
         assert!((env.mass() - 42.116).abs() < 1e-2, "{}", env.mass());
         // The connector links weigh 1 g each: the rapier robot is 6 g heavier.
-        let rapier = env.robot.mass(&env.world);
+        let rapier = env.robot.mass();
         assert!((rapier - env.mass() - 0.006).abs() < 1e-3, "{rapier}");
     }
 
@@ -1067,23 +1057,25 @@ mod tests {
         );
         // Newton, per rapier step, vertical part (the normal forces; friction is approximate).
         let momentum = |env: &Humanoid| {
-            let vels = env.robot.link_velocities(&env.world);
+            let vels = env.robot.links.link_velocities(&env.robot.world);
             let (xi, _) = env.coms();
             env.bodies.iter().zip(&xi).fold(Vector::ZERO, |p, (b, x)| {
                 let (w, v) = vels[b.link];
-                let o = env.robot.pose(&env.world, b.link).translation;
+                let o = env.robot.pose(b.link).translation;
                 p + (v + w.cross(*x - o)) * b.mass
             })
         };
         env.reset(Some(1));
         let acts = random_actions::<NU>(5, 40);
-        let dt = env.world.integration_parameters.dt;
+        let dt = env.robot.world.integration_parameters.dt;
         let mut contacts = 0;
         for a in &acts {
             let torques: Vec<f32> = (0..NU).map(|k| 40.0 * a[k]).collect();
             let p0 = momentum(&env);
-            env.robot.apply_joint_torques(&mut env.world, &torques);
-            env.world.step();
+            env.robot
+                .links
+                .apply_joint_torques(&mut env.robot.world, &torques);
+            env.robot.world.step();
             let dp = (momentum(&env) - p0) / dt;
             let fz: f32 = env.cfrc_ext().iter().map(|w| w[5]).sum();
             let want = dp.z + 9.81 * env.mass();
@@ -1160,9 +1152,9 @@ mod tests {
                 let sign = if (t / 6) % 2 == 0 { 1.0 } else { -1.0 };
                 let a: [f32; NU] = std::array::from_fn(|k| if k % 3 == 0 { sign } else { -sign });
                 env.step(&a);
-                for i in 0..env.robot.num_links() {
-                    for &c in env.robot.colliders(i) {
-                        let col = &env.world.colliders[c];
+                for i in 0..env.robot.links.num_links() {
+                    for &c in env.robot.links.colliders(i) {
+                        let col = &env.robot.world.colliders[c];
                         if let Some(ball) = col.shape().as_ball() {
                             sink = sink.max(ball.radius - col.position().translation.z);
                         }

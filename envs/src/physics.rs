@@ -731,6 +731,81 @@ impl Articulation {
     }
 }
 
+/// A robot in a world of its own, integrated as its [`SimParams`] say: what each locomotion env
+/// holds. It knows how to build its world afresh, so every episode starts from a new world (no
+/// contact or solver cache carries over, and an episode depends only on its seed and actions).
+pub struct Robot {
+    /// The world: the floor and the robot's bodies.
+    pub world: PhysicsWorld,
+    /// The robot's links in [`Robot::world`].
+    pub links: Articulation,
+    sim: SimParams,
+    build: fn(&SimParams) -> (PhysicsWorld, Articulation),
+}
+
+impl Robot {
+    /// The robot of `build` at its rest pose, integrated with `sim`.
+    pub fn new(sim: SimParams, build: fn(&SimParams) -> (PhysicsWorld, Articulation)) -> Self {
+        let (world, links) = build(&sim);
+        Self {
+            world,
+            links,
+            sim,
+            build,
+        }
+    }
+
+    /// The physics settings.
+    pub fn sim(&self) -> SimParams {
+        self.sim
+    }
+
+    /// Puts the robot at `qpos`/`qvel` (see [`Articulation::set_state`]) in a fresh world.
+    pub fn restart(&mut self, qpos: &[f32], qvel: &[f32]) {
+        let (mut world, links) = (self.build)(&self.sim);
+        links.set_state(&mut world, qpos, qvel);
+        self.world = world;
+        self.links = links;
+    }
+
+    /// One control step: the joint `torques` (N·m, one per hinge) held over the rapier steps.
+    pub fn step(&mut self, torques: &[f32]) {
+        for _ in 0..self.sim.substeps {
+            // Rapier's user forces persist until cleared; `apply_joint_torques` sets them anew.
+            self.links.apply_joint_torques(&mut self.world, torques);
+            self.world.step();
+        }
+    }
+
+    pub fn qpos(&self) -> Vec<f32> {
+        self.links.qpos(&self.world)
+    }
+
+    pub fn qvel(&self) -> Vec<f32> {
+        self.links.qvel(&self.world)
+    }
+
+    /// Total mass, kg.
+    pub fn mass(&self) -> f32 {
+        self.links.mass(&self.world)
+    }
+
+    /// Whether every body is still finite (see [`Articulation::is_sane`]).
+    pub fn is_sane(&self) -> bool {
+        self.links.is_sane(&self.world)
+    }
+
+    /// Link `i`'s body pose.
+    pub fn pose(&self, i: usize) -> Pose {
+        self.links.pose(&self.world, i)
+    }
+
+    /// What the world holds, to draw (see [`robot_scene`]).
+    pub fn scene(&self) -> crate::scene::Scene {
+        robot_scene(&self.world, &self.links)
+    }
+}
+
 /// A collider as a drawable [`crate::scene::Shape`] in the world frame: balls, capsules and
 /// cuboids as they are, convex polyhedra as their local bounding box (close enough to see);
 /// `None` for shapes with no solid to draw (half-spaces: see [`world_floor`]).
@@ -779,9 +854,8 @@ pub fn world_floor(w: &PhysicsWorld) -> Option<f32> {
 /// The scene of a robot built with [`Articulation::build`]: every link's colliders, coloured
 /// per link ([`crate::scene::colors::link`]), the world's floor, the camera on the root link
 /// (at half the robot's height);
-/// a side view for a planar robot, a three-quarter view for a free one. Any robot on this
-/// module draws with `fn scene(&self) -> Option<Scene> { Some(physics::robot_scene(&self.world,
-/// &self.robot)) }`.
+/// a side view for a planar robot, a three-quarter view for a free one. Any [`Robot`] draws
+/// with [`Robot::scene`].
 pub fn robot_scene(world: &PhysicsWorld, robot: &Articulation) -> crate::scene::Scene {
     use crate::scene::{colors, Floor, Scene, View};
     let mut shapes = Vec::new();

@@ -33,7 +33,9 @@
 //! A state that goes non-finite (rapier quarantines such bodies) terminates the episode with a
 //! zero observation: the env never emits NaN.
 
-use crate::physics::{add_floor, new_world, Articulation, Geom, LinkDesc, RootJoint, SimParams};
+use crate::physics::{
+    add_floor, new_world, Articulation, Geom, LinkDesc, Robot, RootJoint, SimParams,
+};
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -122,9 +124,7 @@ pub fn links() -> Vec<LinkDesc> {
 
 pub struct Walker2d {
     spec: EnvSpec,
-    sim: SimParams,
-    world: PhysicsWorld,
-    robot: Articulation,
+    robot: Robot,
     t: usize,
     rng: Pcg64,
 }
@@ -150,17 +150,14 @@ impl Walker2d {
     /// The walker with other physics settings (`control_dt` must stay [`SIM`]'s 0.008 s).
     pub fn with_sim(sim: SimParams) -> Self {
         assert_eq!(sim.control_dt, CONTROL_DT);
-        let (world, robot) = build(&sim);
         Self {
-            sim,
             spec: EnvSpec {
                 id: "walker2d",
                 obs_dim: OBS_DIM,
                 act_dim: NA,
                 max_episode_steps: 1000,
             },
-            world,
-            robot,
+            robot: Robot::new(sim, build),
             t: 0,
             rng: Pcg64::seed_from_u64(0),
         }
@@ -169,27 +166,22 @@ impl Walker2d {
     /// Starts an episode from a given state (`qpos` = [x, z, pitch, 6 hinge angles], `qvel` the
     /// matching velocities) in a fresh world.
     pub fn set_state(&mut self, qpos: &[f32; NQ], qvel: &[f32; NQ]) -> Vec<f32> {
-        // A fresh world per episode: no contact or solver cache carries over, so an episode
-        // depends only on its seed and actions.
-        let (mut world, robot) = build(&self.sim);
-        robot.set_state(&mut world, qpos, qvel);
-        self.world = world;
-        self.robot = robot;
+        self.robot.restart(qpos, qvel);
         self.t = 0;
         self.obs(&self.qpos(), &self.qvel())
     }
 
     pub fn qpos(&self) -> Vec<f32> {
-        self.robot.qpos(&self.world)
+        self.robot.qpos()
     }
 
     pub fn qvel(&self) -> Vec<f32> {
-        self.robot.qvel(&self.world)
+        self.robot.qvel()
     }
 
     /// Total mass, kg.
     pub fn mass(&self) -> f32 {
-        self.robot.mass(&self.world)
+        self.robot.mass()
     }
 
     fn obs(&self, q: &[f32], v: &[f32]) -> Vec<f32> {
@@ -207,7 +199,7 @@ impl Walker2d {
 
 impl Env for Walker2d {
     fn scene(&self) -> Option<crate::scene::Scene> {
-        Some(crate::physics::robot_scene(&self.world, &self.robot))
+        Some(self.robot.scene())
     }
 
     fn control_dt(&self) -> Option<f64> {
@@ -242,14 +234,11 @@ impl Env for Walker2d {
         }
         let torques = a.map(|x| x * GEAR);
         let x_before = self.qpos()[0];
-        for _ in 0..self.sim.substeps {
-            self.robot.apply_joint_torques(&mut self.world, &torques);
-            self.world.step();
-        }
+        self.robot.step(&torques);
         self.t += 1;
         let truncated = self.t >= self.spec.max_episode_steps;
         let ctrl_cost = CTRL_COST_WEIGHT * a.iter().map(|x| (*x as f64).powi(2)).sum::<f64>();
-        if !self.robot.is_sane(&self.world) {
+        if !self.robot.is_sane() {
             return Step {
                 obs: vec![0.0; OBS_DIM],
                 reward: -ctrl_cost,
