@@ -59,8 +59,8 @@
 //! emits NaN.
 
 use crate::physics::{
-    add_floor, colliders_contact_wrench, new_world, Articulation, Geom, LinkDesc, Robot, RootJoint,
-    SimParams,
+    add_floor, clip_actions, colliders_contact_wrench, new_world, Articulation, Geom, LinkDesc,
+    Robot, RootJoint, SimParams,
 };
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
@@ -342,11 +342,7 @@ impl Env for Ant {
     }
 
     fn step(&mut self, action: &[f32]) -> Step {
-        let mut a = [0.0f32; 8];
-        for (ai, x) in a.iter_mut().zip(action) {
-            // NaN actions act as zero torque rather than poisoning the physics.
-            *ai = if x.is_nan() { 0.0 } else { x.clamp(-1.0, 1.0) };
-        }
+        let a: [f32; 8] = clip_actions(action);
         let mut torques = [0.0f32; 8];
         for (k, &link) in ACTUATED_LINK.iter().enumerate() {
             torques[link - 1] = a[k] * GEAR;

@@ -35,7 +35,8 @@
 //! zero observation: the env never emits NaN (the only termination).
 
 use crate::physics::{
-    add_floor, new_world, set_total_mass, Articulation, Geom, LinkDesc, Robot, RootJoint, SimParams,
+    add_floor, clip_actions, new_world, set_total_mass, Articulation, Geom, LinkDesc, Robot,
+    RootJoint, SimParams,
 };
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
@@ -267,11 +268,7 @@ impl Env for HalfCheetah {
     }
 
     fn step(&mut self, action: &[f32]) -> Step {
-        let mut a = [0.0f32; NA];
-        for (ai, x) in a.iter_mut().zip(action) {
-            // NaN actions act as zero torque rather than poisoning the physics.
-            *ai = if x.is_nan() { 0.0 } else { x.clamp(-1.0, 1.0) };
-        }
+        let a: [f32; NA] = clip_actions(action);
         let mut torques = a;
         for (t, g) in torques.iter_mut().zip(GEARS) {
             *t *= g;

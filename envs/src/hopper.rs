@@ -24,7 +24,7 @@
 //! zero observation: the env never emits NaN.
 
 use crate::physics::{
-    add_floor, new_world, Articulation, Geom, LinkDesc, Robot, RootJoint, SimParams,
+    add_floor, clip_actions, new_world, Articulation, Geom, LinkDesc, Robot, RootJoint, SimParams,
 };
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
@@ -201,11 +201,7 @@ impl Env for Hopper {
     }
 
     fn step(&mut self, action: &[f32]) -> Step {
-        let mut a = [0.0f32; 3];
-        for (ai, x) in a.iter_mut().zip(action) {
-            // NaN actions act as zero torque rather than poisoning the physics.
-            *ai = if x.is_nan() { 0.0 } else { x.clamp(-1.0, 1.0) };
-        }
+        let a: [f32; 3] = clip_actions(action);
         let torques = a.map(|x| x * GEAR);
         let x_before = self.qpos()[0];
         self.robot.step(&torques);

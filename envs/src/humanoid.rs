@@ -69,8 +69,8 @@
 //!   cheaper settings were not taken).
 
 use crate::physics::{
-    add_floor, colliders_contact_wrench, new_world, Articulation, Geom, LinkDesc, Robot, RootJoint,
-    SimParams,
+    add_floor, clip_actions, colliders_contact_wrench, new_world, Articulation, Geom, LinkDesc,
+    Robot, RootJoint, SimParams,
 };
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
@@ -748,11 +748,7 @@ impl Env for Humanoid {
     }
 
     fn step(&mut self, action: &[f32]) -> Step {
-        let mut ctrl = [0.0f32; NU];
-        for (c, x) in ctrl.iter_mut().zip(action) {
-            // NaN actions act as zero torque rather than poisoning the physics.
-            *c = CTRL_RANGE * if x.is_nan() { 0.0 } else { x.clamp(-1.0, 1.0) };
-        }
+        let ctrl = clip_actions::<NU>(action).map(|x| CTRL_RANGE * x);
         self.ctrl = ctrl;
         let mut torques = [0.0f32; NU];
         for k in 0..NU {

@@ -731,6 +731,16 @@ impl Articulation {
     }
 }
 
+/// An action as the robots take it: each entry clipped to [−1, 1], NaN read as 0 (zero torque
+/// rather than poisoned physics); missing entries are 0.
+pub fn clip_actions<const N: usize>(action: &[f32]) -> [f32; N] {
+    let mut a = [0.0f32; N];
+    for (ai, x) in a.iter_mut().zip(action) {
+        *ai = if x.is_nan() { 0.0 } else { x.clamp(-1.0, 1.0) };
+    }
+    a
+}
+
 /// A robot in a world of its own, integrated as its [`SimParams`] say: what each locomotion env
 /// holds. It knows how to build its world afresh, so every episode starts from a new world (no
 /// contact or solver cache carries over, and an episode depends only on its seed and actions).
