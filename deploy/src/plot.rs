@@ -131,10 +131,11 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric) -> Result<Pat
         "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
         "#bcbd22", "#17becf",
     ];
-    let mut lines: Vec<(Vec<(f64, f64)>, f64, String, String)> = Vec::new();
+    // (points, stroke width, colour, legend label)
+    type Line = (Vec<(f64, f64)>, f64, String, String);
+    let mut lines: Vec<Line> = Vec::new();
     let mut band: Vec<(f64, f64, f64)> = Vec::new();
-    let title;
-    if curves.len() == 1 {
+    let title = if curves.len() == 1 {
         let c = &curves[0];
         for (a, ys) in c.actors.iter().enumerate() {
             lines.push((
@@ -150,7 +151,7 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric) -> Result<Pat
             "#000".into(),
             "best actor".into(),
         ));
-        title = format!("{}: {} per actor", runs[0].display(), metric.label());
+        format!("{}: {} per actor", runs[0].display(), metric.label())
     } else {
         let n = curves.iter().map(|c| c.steps.len()).min().unwrap();
         let mut mean_line = Vec::new();
@@ -173,12 +174,12 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric) -> Result<Pat
             palette[0].into(),
             format!("best actor, mean of {} runs (band ±½ sd)", curves.len()),
         ));
-        title = format!(
+        format!(
             "{} runs: {} of the best actor",
             curves.len(),
             metric.label()
-        );
-    }
+        )
+    };
     let pts = lines
         .iter()
         .flat_map(|l| l.0.iter().copied())
@@ -315,7 +316,7 @@ mod tests {
              1,1000,-50.0,-40.0,0.0,0.1\n\
              2,2000,-20.0,-30.0,0.4,0.7\n",
         );
-        let out = run(&[dir.clone()], None, Metric::Success).unwrap();
+        let out = run(std::slice::from_ref(&dir), None, Metric::Success).unwrap();
         assert_eq!(out, dir.join("success.svg"));
         let svg = std::fs::read_to_string(&out).unwrap();
         assert!(svg.contains("evaluation success rate per actor"));
@@ -326,7 +327,8 @@ mod tests {
         );
         // Ticks of a rate carry decimals.
         assert!(svg.contains(">0.12<"), "{svg}");
-        let returns = std::fs::read_to_string(run(&[dir.clone()], None, Metric::Return).unwrap());
+        let returns =
+            std::fs::read_to_string(run(std::slice::from_ref(&dir), None, Metric::Return).unwrap());
         assert!(returns.unwrap().contains("evaluation return per actor"));
         let _ = std::fs::remove_dir_all(&dir);
     }
@@ -337,7 +339,7 @@ mod tests {
             "nosuccess",
             "epoch,env_steps,eval_return_0,eval_success_0\n1,1000,-50.0,NaN\n",
         );
-        let e = run(&[dir.clone()], None, Metric::Success)
+        let e = run(std::slice::from_ref(&dir), None, Metric::Success)
             .unwrap_err()
             .to_string();
         assert!(e.contains("must report success"), "{e}");

@@ -217,10 +217,9 @@ async fn supervise(
 
     let k = cfg.algo.actors;
     let mut generation = vec![0u32; k];
-    let mut pids = vec![0u32; k];
-    for w in 0..k {
-        pids[w] = spawn_worker(worker_bin, run_dir, run_id, cfg, w, 0, &tx)?;
-    }
+    let mut pids = (0..k)
+        .map(|w| spawn_worker(worker_bin, run_dir, run_id, cfg, w, 0, &tx))
+        .collect::<Result<Vec<u32>>>()?;
     let tty = std::io::stderr().is_terminal();
     let started = Instant::now();
     let mut last_line = Instant::now() - Duration::from_secs(60);

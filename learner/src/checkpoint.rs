@@ -35,7 +35,7 @@ pub struct TrainingState {
     pub wall_seconds: f64,
 }
 
-fn tensors<'a>(s: &'a Selkd) -> Vec<(String, &'a Tensor)> {
+fn tensors(s: &Selkd) -> Vec<(String, &Tensor)> {
     let mut out = s.actors.named_params("actors");
     out.extend(s.critics.named_params("critics"));
     out.extend(s.target_critics.named_params("target_critics"));

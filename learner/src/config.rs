@@ -293,7 +293,9 @@ impl Config {
             return bad(format!("algo.polyak (ρ) = {} must be in [0, 1)", a.polyak));
         }
         if a.paired_critics
-            && (a.actors < 2 || a.critics % a.actors != 0 || a.sharing != Sharing::PerUpdate)
+            && (a.actors < 2
+                || !a.critics.is_multiple_of(a.actors)
+                || a.sharing != Sharing::PerUpdate)
         {
             return bad(format!(
                 "algo.paired_critics needs at least 2 actors, algo.critics ({}) a multiple of algo.actors ({}), and sharing = \"per-update\"",
@@ -335,7 +337,7 @@ impl Config {
                     .into(),
             );
         }
-        if self.eval.epoch_env_steps % a.actors as u64 != 0 {
+        if !self.eval.epoch_env_steps.is_multiple_of(a.actors as u64) {
             return bad(format!("eval.epoch_env_steps ({}) must be a multiple of algo.actors ({}) so every actor evaluates at the same round", self.eval.epoch_env_steps, a.actors));
         }
         let dev = self.run.device.as_str();
@@ -349,7 +351,8 @@ impl Config {
                 "run.device = \"{dev}\" must be cpu, cuda or cuda:N"
             ));
         }
-        if !(self.asynchronous.ratio_tolerance >= 1.0) {
+        let tolerance = self.asynchronous.ratio_tolerance;
+        if tolerance.is_nan() || tolerance < 1.0 {
             return bad("async.ratio_tolerance must be at least 1 (critic updates)".into());
         }
         if self.asynchronous.max_policy_lag == 0 {

@@ -416,6 +416,8 @@ impl Selkd {
 }
 
 #[cfg(test)]
+// The reference computations index like the formulas they check.
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
     use crate::config::Sharing;

@@ -179,11 +179,7 @@ impl Learner {
             lag_max: 0,
             last_stats: RoundStats::default(),
             epochs_logged: eval_epoch,
-            next_checkpoint: if every == 0 {
-                0
-            } else {
-                (inserted / every + 1) * every
-            },
+            next_checkpoint: inserted.checked_div(every).map_or(0, |n| (n + 1) * every),
             started: Instant::now(),
             wall_offset: resumed.as_ref().map_or(0.0, |s| s.wall_seconds),
             metrics,

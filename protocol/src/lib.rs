@@ -29,6 +29,7 @@ pub const TRANSITION_BUFFER: usize = 16_384;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
 #[repr(C)]
 #[type_name("selkd::Name")]
+#[derive(Default)]
 pub struct Name(pub [u8; 32]);
 
 impl Name {
@@ -41,12 +42,6 @@ impl Name {
     pub fn as_str(&self) -> &str {
         let end = self.0.iter().position(|&c| c == 0).unwrap_or(32);
         std::str::from_utf8(&self.0[..end]).unwrap_or("<invalid>")
-    }
-}
-
-impl Default for Name {
-    fn default() -> Self {
-        Name([0; 32])
     }
 }
 
@@ -84,6 +79,8 @@ impl TransitionRow {
     pub fn is_empty(&self) -> bool {
         false
     }
+    // One argument per field of a transition: a struct would only rename them.
+    #[allow(clippy::too_many_arguments)]
     pub fn write(
         &self,
         out: &mut Vec<f32>,
