@@ -25,7 +25,7 @@
 //! limits are very soft, `solimplimit="0 .8 .03"`), and rapier's integrator (see [`SIM`]).
 //!
 //! Random actions: the cheetah drifts backward, as in MuJoCo but further: over 1000 random
-//! steps, mean −18.5 m here (20 seeds, −3 to −35 m) vs −3.9 m in Gymnasium's `HalfCheetah-v5`
+//! steps, mean −14.5 m here (20 seeds, −5 to −28 m) vs −3.9 m in Gymnasium's `HalfCheetah-v5`
 //! (10 seeds, −9.2 to +0.8 m). Open-loop gaits fare much better here than in MuJoCo (see the
 //! test `sine_gait_beats_standing_still`): rapier's hard contacts and joint limits push off
 //! more effectively than MuJoCo's soft ones, so rewards are not comparable with MuJoCo's
@@ -45,7 +45,8 @@ use rapier3d::prelude::PhysicsWorld;
 
 const GEARS: [f32; NA] = [120.0, 90.0, 60.0, 120.0, 60.0, 30.0];
 const CONTROL_DT: f32 = 0.05;
-/// Physics integration per control step: 2 rapier steps of 25 ms with 1 solver iteration each.
+/// Physics integration per control step: 5 rapier steps of 10 ms (MuJoCo's own timestep and
+/// frame skip) with 1 solver iteration each.
 ///
 /// Measured (`tests::sim_settings`; rapier steps × iterations; 20 random episodes; the error is
 /// the RMS difference in `qvel` after one control step from 36 visited states, against 50 steps
@@ -53,25 +54,27 @@ const CONTROL_DT: f32 = 0.05;
 ///
 /// | setting | one-step error | limit overshoot p99 / p99.9 / max, rad | sinking | sine gait | speed |
 /// |---|---|---|---|---|---|
-/// | 5×1 (MuJoCo's 5 × 10 ms) | 1.22 | 0.033 / 0.071 / 0.097 | 11 mm | 515–545 m | 1 |
+/// | **5×1** | 1.22 | 0.033 / 0.071 / 0.097 | 11 mm | 515–545 m | 1 |
 /// | 3×2 | 1.08 | 0.029 / 0.066 / 0.111 | 10 mm | 362–397 m | 1.0× |
 /// | 2×2 | 1.57 | 0.041 / 0.091 / 0.140 | 40 mm | 169–212 m | 1.5× |
 /// | 3×1 | 1.89 | 0.054 / 0.115 / 0.246 | 26 mm | 193–195 m | 1.6× |
-/// | **2×1** | 2.51 | 0.061 / 0.141 / 0.277 | 37 mm | 135–136 m | 2.45× |
+/// | 2×1 | 2.51 | 0.061 / 0.141 / 0.277 | 37 mm | 135–136 m | 2.45× |
 /// | 1×2 | 2.56 | 0.064 / 0.148 / 0.223 | 186 mm | 60–67 m | 3.2× |
 ///
 /// MuJoCo's own `HalfCheetah-v5`, measured the same way: overshoot p99 0.075, p99.9 0.115, max
 /// 0.175 rad (its limits are soft); one-step error 0.71 at its 5 × 10 ms against 50 × 1 ms
-/// (RMS `qvel` 6.5), 1.83 at 2 × 25 ms. 2×1 is the cheapest setting that stays stable and keeps
-/// the feet out of the floor (one rapier step: the feet sink 19 cm); its limits hold like
-/// MuJoCo's up to the 99.9th percentile, with rarer, larger excursions. Every setting is far from
-/// converged for the gait: the sine gait, tuned on 5×1, goes 25–44 m under the 50 × 1 ms
-/// reference, so its 500 m at 5×1 was an artefact of that integrator, not fidelity. The
-/// integration error is about twice 5×1's, for 2.45× the speed (MuJoCo's speed here is
-/// 1.3–2× what 5×1 gives).
+/// (RMS `qvel` 6.5), 1.83 at 2 × 25 ms. Every setting is far from converged for the gait: the
+/// sine gait, tuned on 5×1, goes 25–44 m under the 50 × 1 ms reference.
+///
+/// 2×1 is stable and 2.45× faster (about MuJoCo's speed), and was the default for a while, but
+/// it is a much harder task to learn: SELKD with 2 actors, 20k env steps (`configs/quick.toml`
+/// sizes on this env, seeds 1–3), reached best-actor returns of 624–1585 at 5×1 and −125 to 266
+/// at 2×1; every 5×1 seed beat every 2×1 seed. Training wall-clock is set by the learner (an
+/// update costs some 60× an env step here), not by the env, so 5×1 stays the default;
+/// `[env_options] substeps = 2` gives the fast setting.
 pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
-    substeps: 2,
+    substeps: 5,
     solver_iterations: 1,
 };
 /// Rapier's contact prediction distance, m (its default is 2 cm): the cheetah's feet move
@@ -378,11 +381,11 @@ mod tests {
     }
 
     /// An open-loop sine gait: a_j = sin(2π f t + φ_j) (amplitude 1), found by a short search
-    /// run once on this env under the earlier 5 × 10 ms physics (60 random samples then
-    /// hill-climbing on the forward progress of seeds 100–101, 200 s); [f Hz, then φ_j for
-    /// bthigh … ffoot]. It ran ~530 m in 1000 steps there and runs ~135 m under [`SIM`] (see
-    /// its doc); the same gait goes ~90 m *backward* in Gymnasium's MuJoCo HalfCheetah-v5, and
-    /// the same search run on MuJoCo found at best 67 m: open-loop gaits exploit the engine.
+    /// run once on this env (60 random samples then hill-climbing on the forward progress of
+    /// seeds 100–101, 200 s); [f Hz, then φ_j for bthigh … ffoot]. It runs ~530 m in 1000 steps
+    /// here, and only 25–44 m under 1 ms physics steps (see [`SIM`]); the same gait goes ~90 m
+    /// *backward* in Gymnasium's MuJoCo HalfCheetah-v5, and the same search run on MuJoCo found
+    /// at best 67 m: open-loop gaits exploit the engine.
     const GAIT: [f32; 7] = [
         4.22699, -2.7452831, 1.0884578, -1.0541096, 0.44694817, -2.9582198, 1.9110123,
     ];

@@ -64,9 +64,9 @@
 //!   force averages the weight (413 N) within 10%, and each step's vertical contact force
 //!   matches the robot's momentum change (`tests::cfrc_ext_is_zero_in_the_air_and_carries_the_weight`).
 //! - Speed (`selkd bench env humanoid`, random actions, one thread, resets included) against
-//!   Gymnasium `Humanoid-v5`, three sittings interleaved on the shared 2-core machine:
-//!   2.20k/2.62k, 1.73k/1.97k, 2.37k/2.48k env steps/s, 0.84–0.96× (see [`SIM`] for why the
-//!   cheaper settings were not taken).
+//!   Gymnasium `Humanoid-v5`, six sittings interleaved on the shared 2-core machine: 0.84–1.01×
+//!   (e.g. 2.20k/2.62k, 2.01k/1.99k env steps/s); with `solver_iterations = 1` 1.65–1.68× (see
+//!   [`SIM`] for why that cheaper setting is not the default).
 
 use crate::physics::{
     add_floor, clip_actions, colliders_contact_wrench, new_world, Articulation, Geom, LinkDesc,

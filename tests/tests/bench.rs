@@ -27,17 +27,17 @@ fn bench_env_steps_the_env_with_its_options() {
     assert!(out.contains("halfcheetah: 2000 steps, 2 episodes"), "{out}");
     let default = rate(&out);
     assert!(default > 0.0);
-    // Five times the physics steps per control step runs measurably slower (the options are
-    // applied, not just parsed); the ratio is loose because this machine is shared.
+    // Five times the cheetah's 5 physics steps per control step runs measurably slower (the
+    // options are applied, not just parsed); the ratio is loose because machines are shared.
     let (ok, out, err) = bench(&[
         "halfcheetah",
         "--steps",
         "2000",
         "--env-options",
-        "substeps = 10",
+        "substeps = 25",
     ]);
     assert!(ok, "{err}");
-    assert!(rate(&out) < 0.8 * default, "{} vs {default}", rate(&out));
+    assert!(rate(&out) < 0.6 * default, "{} vs {default}", rate(&out));
     for (args, want) in [
         (
             vec!["halfcheetah", "--env-options", "substeps = 0"],
