@@ -67,9 +67,10 @@ const CONTROL_DT: f32 = 0.05;
 /// sine gait, tuned on 5×1, goes 25–44 m under the 50 × 1 ms reference.
 ///
 /// 2×1 is stable and 2.45× faster (about MuJoCo's speed), and was the default for a while, but
-/// it is a much harder task to learn: SELKD with 2 actors, 20k env steps (`configs/quick.toml`
-/// sizes on this env, seeds 1–3), reached best-actor returns of 624–1585 at 5×1 and −125 to 266
-/// at 2×1; every 5×1 seed beat every 2×1 seed. Training wall-clock is set by the learner (an
+/// it is a much harder task to learn: SELKD (2 actors, 4 critics, subset 2, UTD 2, 128×128
+/// networks, batch 128, 2000 warm-up steps, sync mode; seeds 1–3) reached best-actor returns of
+/// 624–1585 after 20k env steps at 5×1 and −125 to 266 at 2×1; every 5×1 seed beat every 2×1
+/// seed. Training wall-clock is set by the learner (an
 /// update costs some 60× an env step here), not by the env, so 5×1 stays the default;
 /// `[env_options] substeps = 2` gives the fast setting.
 pub const SIM: SimParams = SimParams {
