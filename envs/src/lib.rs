@@ -10,10 +10,11 @@
 //! [`HumanoidOptions`]); and `fpc-assembly` (the paper's 3C assembly task: a
 //! gripper inserts a flexible printed circuit into a connector slot with 0.05 mm clearance,
 //! scored by success rate; [`FpcAssembly`], configured by [`FpcConfig`]). [`Ant`]'s default
-//! observation is 27-dim; `ant-contacts` adds v5's 78 contact-force terms (105-dim). [`physics`]
-//! holds the
-//! rapier helpers that the locomotion robots share: world setup, planar root, hinge chains,
-//! joint torques and state.
+//! observation is 27-dim; `ant-contacts` adds v5's 78 contact-force terms (105-dim).
+//!
+//! [`physics`] holds the rapier helpers that the locomotion robots share: world setup, planar
+//! root, hinge chains, joint torques and state, and [`physics::Robot`], a robot in its own world
+//! with its physics settings (which a run may override: [`physics::PhysicsOptions`]).
 
 mod ant;
 pub mod fpc_assembly;
@@ -69,7 +70,7 @@ pub trait Env: Send {
     /// caller error; envs then keep stepping from the final state.
     fn step(&mut self, action: &[f32]) -> Step;
     /// What is in the world now, for drawing (`selkd render`); `None` for an env that cannot
-    /// be drawn. A robot on [`physics`] implements it as `Some(physics::robot_scene(..))`.
+    /// be drawn. A robot on [`physics`] implements it as `Some(self.robot.scene())`.
     fn scene(&self) -> Option<scene::Scene> {
         None
     }

@@ -765,11 +765,6 @@ impl Robot {
         }
     }
 
-    /// The physics settings.
-    pub fn sim(&self) -> SimParams {
-        self.sim
-    }
-
     /// Puts the robot at `qpos`/`qvel` (see [`Articulation::set_state`]) in a fresh world.
     pub fn restart(&mut self, qpos: &[f32], qvel: &[f32]) {
         let (mut world, links) = (self.build)(&self.sim);
