@@ -355,13 +355,7 @@ impl Env for Ant {
         let truncated = self.t >= self.spec.max_episode_steps;
         let ctrl_cost = CTRL_COST_WEIGHT * a.iter().map(|x| (*x as f64).powi(2)).sum::<f64>();
         if !self.robot.is_sane() {
-            return Step {
-                obs: vec![0.0; self.spec.obs_dim],
-                reward: -ctrl_cost,
-                terminated: true,
-                truncated,
-                success: None,
-            };
+            return Step::non_finite_state(self.spec.obs_dim, -ctrl_cost, truncated);
         }
         let (q, v) = (self.qpos(), self.qvel());
         let contacts = self.contact_forces();

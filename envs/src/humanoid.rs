@@ -760,13 +760,7 @@ impl Env for Humanoid {
         let truncated = self.t >= self.spec.max_episode_steps;
         let ctrl_cost = CTRL_COST_WEIGHT * ctrl.iter().map(|x| (*x as f64).powi(2)).sum::<f64>();
         if !self.robot.is_sane() {
-            return Step {
-                obs: vec![0.0; self.spec.obs_dim],
-                reward: -ctrl_cost,
-                terminated: true,
-                truncated,
-                success: None,
-            };
+            return Step::non_finite_state(self.spec.obs_dim, -ctrl_cost, truncated);
         }
         let q = self.qpos();
         let x_velocity = (self.center_of_mass().x as f64 - x_before as f64) / CONTROL_DT as f64;

@@ -61,6 +61,20 @@ pub struct Step {
     pub success: Option<bool>,
 }
 
+impl Step {
+    /// The step that ends an episode whose physics state went non-finite (rapier quarantined a
+    /// body): a zero observation, terminated with `reward`, so no env ever emits NaN.
+    pub fn non_finite_state(obs_dim: usize, reward: f64, truncated: bool) -> Step {
+        Step {
+            obs: vec![0.0; obs_dim],
+            reward,
+            terminated: true,
+            truncated,
+            success: None,
+        }
+    }
+}
+
 /// A Gymnasium-style environment. Actions outside `[-1, 1]` are clipped by the env.
 pub trait Env: Send {
     fn spec(&self) -> &EnvSpec;
