@@ -1187,11 +1187,8 @@ impl Env for FpcAssembly {
         let non_finite = |env: &mut Self| {
             env.end = Some(EndReason::NonFinite);
             Step {
-                obs: vec![0.0; OBS_DIM],
-                reward: -action_cost,
-                terminated: true,
-                truncated,
                 success: Some(false),
+                ..Step::non_finite_state(OBS_DIM, -action_cost, truncated)
             }
         };
         if !self.scene.is_sane() {
