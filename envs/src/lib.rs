@@ -16,17 +16,17 @@
 //! root, hinge chains, joint torques and state, and [`physics::Robot`], a robot in its own world
 //! with its physics settings (which a run may override: [`physics::PhysicsOptions`]).
 
-mod ant;
+pub mod ant;
 pub mod fpc_assembly;
-mod halfcheetah;
-mod hopper;
-mod humanoid;
+pub mod halfcheetah;
+pub mod hopper;
+pub mod humanoid;
 mod pendulum;
 pub mod physics;
 pub mod scene;
 #[cfg(test)]
 mod testing;
-mod walker2d;
+pub mod walker2d;
 
 pub use ant::{Ant, AntObs};
 pub use fpc_assembly::{FpcAssembly, FpcConfig};
