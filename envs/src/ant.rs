@@ -727,18 +727,7 @@ mod tests {
                 for (j, [lo, hi]) in ranges.iter().enumerate() {
                     overshoot = overshoot.max(lo - q[7 + j]).max(q[7 + j] - hi);
                 }
-                for i in 0..env.robot.links.num_links() {
-                    for &c in env.robot.links.colliders(i) {
-                        let col = &env.robot.world.colliders[c];
-                        let p = col.position();
-                        if let Some(cap) = col.shape().as_capsule() {
-                            let z = (p * cap.segment.a).z.min((p * cap.segment.b).z);
-                            sink = sink.max(cap.radius - z);
-                        } else if let Some(ball) = col.shape().as_ball() {
-                            sink = sink.max(ball.radius - p.translation.z);
-                        }
-                    }
-                }
+                sink = sink.max(crate::testing::sinking(&env.robot));
             }
             let trot: Vec<f32> = (0..3)
                 .map(|s| {

@@ -458,15 +458,7 @@ mod tests {
                         o.max(ranges[j][0] - q[j]).max(q[j] - ranges[j][1])
                     });
                     overshoots.push(o);
-                    for i in 0..env.robot.links.num_links() {
-                        for &c in env.robot.links.colliders(i) {
-                            let col = &env.robot.world.colliders[c];
-                            let cap = col.shape().as_capsule().unwrap();
-                            let p = col.position();
-                            let z = (p * cap.segment.a).z.min((p * cap.segment.b).z);
-                            sink = sink.max(cap.radius - z);
-                        }
-                    }
+                    sink = sink.max(crate::testing::sinking(&env.robot));
                 }
             }
             let rate = 20_000.0 / start.elapsed().as_secs_f64();
