@@ -8,8 +8,7 @@ use clap::Parser;
 use iceoryx2::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
-use selkd_envs::Env;
-use selkd_policy::{Actor, ActorLayout};
+use selkd_policy::{evaluation, Actor, ActorLayout};
 use selkd_protocol::{
     services, Control, Name, Report, ReportKind, Services, TransitionHeader, TransitionRow,
     PROTOCOL_VERSION,
@@ -245,12 +244,13 @@ fn run(args: &Args) -> Result<()> {
         if control.eval_epoch > evaluated && weights_version >= control.weights_version {
             // Deterministic evaluation of the current weights, on its own env and seeds.
             let epoch = control.eval_epoch;
-            let (mean_return, success_rate) = evaluate(
+            // Every actor plays the same episode seeds this epoch (common random numbers).
+            let result = evaluation::evaluate(
                 &mut *eval_env,
                 policy,
-                control.eval_episodes as usize,
-                |e| seed_for(seed, args.worker, 0, 1_000_000 + epoch * 1000 + e as u64),
+                (0..control.eval_episodes as u64).map(|e| evaluation::epoch_seed(seed, epoch, e)),
             );
+            let (mean_return, success_rate) = (result.mean_return(), result.success_rate());
             reports.send_copy(hello(
                 ReportKind::Evaluation,
                 weights_version,
@@ -322,38 +322,6 @@ fn run(args: &Args) -> Result<()> {
             }
         }
     }
-}
-
-/// Mean undiscounted return (and success rate, where the task reports success) of `episodes`
-/// episodes with the deterministic action `tanh(μ)`.
-fn evaluate(
-    env: &mut dyn Env,
-    policy: &Actor,
-    episodes: usize,
-    seed: impl Fn(usize) -> u64,
-) -> (f64, f64) {
-    let (mut total, mut successes, mut with_success) = (0.0, 0usize, 0usize);
-    for e in 0..episodes {
-        let mut obs = env.reset(Some(seed(e)));
-        loop {
-            let step = env.step(&policy.mean_action(&obs));
-            total += step.reward;
-            if step.terminated || step.truncated {
-                if let Some(s) = step.success {
-                    with_success += 1;
-                    successes += s as usize;
-                }
-                break;
-            }
-            obs = step.obs;
-        }
-    }
-    let rate = if with_success > 0 {
-        successes as f64 / with_success as f64
-    } else {
-        f64::NAN
-    };
-    (total / episodes as f64, rate)
 }
 
 /// Whether a live `learner` node exists (dead ones are cleaned up by iceoryx2 as it lists them).

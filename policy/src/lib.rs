@@ -7,6 +7,8 @@
 //! action `u`; the action is `tanh(u)`. Each layer is stored as its weight `[in][out]` (row-major)
 //! followed by its bias `[out]`, layers in order.
 
+pub mod evaluation;
+
 use rand::Rng;
 use rand_distr::StandardNormal;
 
