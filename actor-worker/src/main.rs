@@ -42,8 +42,10 @@ struct Args {
 }
 
 fn main() {
+    // Colour only on a terminal: the launcher sends these logs to files.
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
         )
@@ -216,10 +218,17 @@ fn run(args: &Args) -> Result<()> {
     );
 
     let seed = control.seed;
-    let mut action_rng = Pcg64::seed_from_u64(seed_for(seed, args.worker, args.generation, 1));
-    let mut obs = env.reset(Some(seed_for(seed, args.worker, args.generation, 2)));
     // Counted from what the learner has already received from this actor, so budgets carry over restarts.
     let mut sent = control.received[args.worker];
+    // A worker that joins a run in progress (restarted, or the run resumed from a checkpoint)
+    // starts env and action streams of its own, fixed by where it joins: it never replays the
+    // episodes the run began with.
+    let stream = |purpose| {
+        seed_for(seed, args.worker, args.generation, purpose)
+            .wrapping_add(sent.wrapping_mul(0xd1b5_4a32_d192_ed03))
+    };
+    let mut action_rng = Pcg64::seed_from_u64(stream(1));
+    let mut obs = env.reset(Some(stream(2)));
     let mut episode = 0u64;
     let mut t = 0u64;
     let mut episode_return = 0.0f64;

@@ -11,6 +11,21 @@ use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, Command};
 use tokio::sync::mpsc;
 
+/// Writes a line to stderr, ignoring failure: a closed terminal (SIGHUP) or pipe must not turn a
+/// clean stop into a panic.
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        let _ = writeln!(std::io::stderr(), $($arg)*);
+    }};
+}
+/// As `say!`, without the newline.
+macro_rules! sayp {
+    ($($arg:tt)*) => {{
+        let mut e = std::io::stderr();
+        let _ = write!(e, $($arg)*).and_then(|()| e.flush());
+    }};
+}
+
 /// The quick default: learning on Pendulum within a few minutes on 2 cores.
 const QUICK_CONFIG: &str = include_str!("../../configs/quick.toml");
 
@@ -87,7 +102,7 @@ pub fn run(args: TrainArgs) -> Result<i32> {
             .duration_since(std::time::UNIX_EPOCH)?
             .subsec_nanos()
     );
-    eprintln!(
+    say!(
         "selkd: run {run_id}: {} with K={} actors, N={} critics ({:?} mode) → {}",
         cfg.run.env,
         cfg.algo.actors,
@@ -225,12 +240,17 @@ async fn supervise(
     let mut last_line = Instant::now() - Duration::from_secs(60);
     let mut stopping = false;
     let mut failure: Option<String> = None;
-    let mut ctrl_c = Box::pin(tokio::signal::ctrl_c());
+    // SIGINT (Ctrl-C), SIGTERM (kill, timeout, systemd, docker, Slurm) and SIGHUP (a closed
+    // terminal) all stop the run the same way: the learner writes a final checkpoint and tells the
+    // workers to exit; selkd then exits 128 + the signal's number.
+    let mut signals = StopSignals::new()?;
+    let mut stopped_by: Option<i32> = None;
     let learner_status = loop {
         tokio::select! {
-            _ = &mut ctrl_c, if !stopping => {
+            sig = signals.next(), if !stopping => {
                 stopping = true;
-                eprintln!("\nselkd: stopping (Ctrl-C): the learner writes a checkpoint, then everything exits");
+                stopped_by = Some(sig);
+                say!("\nselkd: stopping ({}): the learner writes a checkpoint, then everything exits", signal_name(sig));
                 unsafe { libc::kill(learner_pid, libc::SIGTERM) };
             }
             ev = rx.recv() => match ev {
@@ -238,9 +258,9 @@ async fn supervise(
                 Some(Event::Progress(p)) => {
                     let line = progress_line(&p, started.elapsed());
                     if tty {
-                        eprint!("\r\x1b[K{line}");
+                        sayp!("\r\x1b[K{line}");
                     } else if last_line.elapsed() >= Duration::from_secs(10) {
-                        eprintln!("{line}");
+                        say!("{line}");
                         last_line = Instant::now();
                     }
                 }
@@ -265,7 +285,7 @@ async fn supervise(
                     }
                     generation[worker] += 1;
                     let why = match (code, signal) { (_, Some(s)) => format!("signal {s}"), (Some(c), _) => format!("exit code {c}"), _ => "unknown".into() };
-                    eprintln!("{}selkd: worker {worker} died ({why}); restarting it (generation {})", if tty { "\n" } else { "" }, generation[worker]);
+                    say!("{}selkd: worker {worker} died ({why}); restarting it (generation {})", if tty { "\n" } else { "" }, generation[worker]);
                     pids[worker] = spawn_worker(worker_bin, run_dir, run_id, cfg, worker, generation[worker], &tx)?;
                 }
                 Some(Event::LearnerExited(status)) => break status,
@@ -273,7 +293,7 @@ async fn supervise(
         }
     };
     if tty {
-        eprintln!();
+        say!();
     }
     // Workers leave on the learner's stop order; any still running after a grace period are killed.
     let deadline = Instant::now() + Duration::from_secs(5);
@@ -288,11 +308,11 @@ async fn supervise(
     let learner_log = run_dir.join("logs").join("learner.log");
     match (learner_status.code(), failure) {
         (_, Some(f)) => {
-            eprintln!("selkd: run failed: {f}");
+            say!("selkd: run failed: {f}");
             Ok(1)
         }
         (Some(0), None) => {
-            eprintln!(
+            say!(
                 "selkd: done in {:.0} s. Metrics: {}; checkpoint: {}",
                 started.elapsed().as_secs_f64(),
                 run_dir.join("metrics.csv").display(),
@@ -301,11 +321,11 @@ async fn supervise(
             Ok(0)
         }
         (Some(130), None) => {
-            eprintln!(
+            say!(
                 "selkd: stopped; checkpoint at {}",
                 run_dir.join("checkpoints").join("final").display()
             );
-            Ok(130)
+            Ok(128 + stopped_by.unwrap_or(libc::SIGINT))
         }
         _ => {
             let last = std::fs::read_to_string(&learner_log)
@@ -317,12 +337,48 @@ async fn supervise(
                         .map(str::to_string)
                 })
                 .unwrap_or_default();
-            eprintln!(
+            say!(
                 "selkd: the learner failed ({learner_status}): {last}\nselkd: full log: {}",
                 learner_log.display()
             );
             Ok(1)
         }
+    }
+}
+
+/// The signals that stop a run.
+struct StopSignals {
+    int: tokio::signal::unix::Signal,
+    term: tokio::signal::unix::Signal,
+    hup: tokio::signal::unix::Signal,
+}
+
+impl StopSignals {
+    fn new() -> Result<Self> {
+        use tokio::signal::unix::{signal, SignalKind};
+        Ok(Self {
+            int: signal(SignalKind::interrupt()).context("installing the SIGINT handler")?,
+            term: signal(SignalKind::terminate()).context("installing the SIGTERM handler")?,
+            hup: signal(SignalKind::hangup()).context("installing the SIGHUP handler")?,
+        })
+    }
+
+    /// The number of the next stop signal.
+    async fn next(&mut self) -> i32 {
+        tokio::select! {
+            _ = self.int.recv() => libc::SIGINT,
+            _ = self.term.recv() => libc::SIGTERM,
+            _ = self.hup.recv() => libc::SIGHUP,
+        }
+    }
+}
+
+fn signal_name(sig: i32) -> &'static str {
+    match sig {
+        libc::SIGINT => "Ctrl-C",
+        libc::SIGTERM => "SIGTERM",
+        libc::SIGHUP => "SIGHUP",
+        _ => "signal",
     }
 }
 

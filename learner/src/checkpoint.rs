@@ -31,6 +31,14 @@ pub struct TrainingState {
     pub lockstep_rounds: u64,
     pub weights_version: u64,
     pub eval_epoch: u64,
+    /// Epochs whose metrics row is written; later epochs up to `eval_epoch` had their evaluation
+    /// in flight, and a resumed run asks for it again. (Absent in older checkpoints: then
+    /// `eval_epoch`.)
+    #[serde(default)]
+    pub epochs_logged: Option<u64>,
+    /// Env steps (all actors) at which each epoch after `epochs_logged` ended.
+    #[serde(default)]
+    pub epoch_ends: Vec<(u64, u64)>,
     pub ranking: Ranking,
     pub wall_seconds: f64,
 }

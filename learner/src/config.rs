@@ -99,6 +99,13 @@ pub struct AlgoConfig {
     pub paired_critics: bool,
     /// Ablation "SELKD w/o RL": only actor 0 optimises the RL objective; the others only distil.
     pub without_rl: bool,
+    /// Which actors have a distillation term (0-based); absent: every actor. The ablation "SELKD
+    /// w/o KD" sets `[0]`: one actor learns with RL + KD, the others with RL only.
+    pub kd_actors: Option<Vec<usize>>,
+    /// How an actor's objective reduces the critics' values of its action: `mean` over the N
+    /// critics (SELKD's eq. 7, REDQ), or `min` (SAC's clipped double Q, as Haarnoja et al., SB3
+    /// and CleanRL maximise min(Q1, Q2)).
+    pub actor_q: ActorQ,
     /// `target = "max-aqe"`: how many of the highest subset values AQE drops.
     pub aqe_drop: usize,
     /// Fixed temperature; when absent, each actor's α is tuned automatically.
@@ -109,6 +116,14 @@ pub struct AlgoConfig {
     /// Element type of the critics' matmuls: `fp32` (exact) or `bf16` (about twice the matmul
     /// throughput on CPUs with AVX-512 BF16 and on GPUs; fp32 weights, optimiser and accumulation).
     pub critic_matmul: Precision,
+}
+
+/// The actor objective's reduction over critics.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum ActorQ {
+    Mean,
+    Min,
 }
 
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
@@ -190,6 +205,8 @@ impl Default for AlgoConfig {
             kd_weight: 1.0,
             paired_critics: false,
             without_rl: false,
+            kd_actors: None,
+            actor_q: ActorQ::Mean,
             aqe_drop: 1,
             fixed_alpha: None,
             alpha_lr: 3e-4,
@@ -337,8 +354,18 @@ impl Config {
                     .into(),
             );
         }
-        if !self.eval.epoch_env_steps.is_multiple_of(a.actors as u64) {
-            return bad(format!("eval.epoch_env_steps ({}) must be a multiple of algo.actors ({}) so every actor evaluates at the same round", self.eval.epoch_env_steps, a.actors));
+        // An epoch ends at the first round boundary at or past each multiple of epoch_env_steps,
+        // so any K works, as long as one round does not span two epochs.
+        if self.eval.epoch_env_steps < a.actors as u64 {
+            return bad(format!("eval.epoch_env_steps ({}) must be at least algo.actors ({}): one round (K env steps) may not span two epochs", self.eval.epoch_env_steps, a.actors));
+        }
+        if let Some(list) = &a.kd_actors {
+            if let Some(&i) = list.iter().find(|&&i| i >= a.actors) {
+                return bad(format!("algo.kd_actors names actor {i}, but the run has algo.actors = {} (actors 0..{})", a.actors, a.actors - 1));
+            }
+            if a.paired_critics {
+                return bad("algo.kd_actors cannot be combined with algo.paired_critics (DPD's actors all distil toward their peer)".into());
+            }
         }
         let dev = self.run.device.as_str();
         if !(dev == "cpu"
@@ -377,10 +404,6 @@ impl Config {
     /// The fingerprint of `[env_options]` that learner and workers compare in the handshake.
     pub fn env_options_fingerprint(&self) -> u64 {
         selkd_envs::options_fingerprint(&self.env_options)
-    }
-
-    pub fn epoch_per_actor(&self) -> u64 {
-        self.eval.epoch_env_steps / self.algo.actors as u64
     }
 }
 

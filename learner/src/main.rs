@@ -33,8 +33,10 @@ struct Args {
 }
 
 fn main() {
+    // Colour only on a terminal: the launcher sends these logs to files.
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
         )
@@ -60,7 +62,12 @@ fn run(args: &Args) -> Result<Outcome> {
     };
     let cfg = Config::from_toml_with_overrides(&text, &args.set)?;
     let stop = Arc::new(AtomicBool::new(false));
-    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+    // SIGHUP too: a closed terminal must stop the run with a checkpoint, not kill the learner.
+    for sig in [
+        signal_hook::consts::SIGINT,
+        signal_hook::consts::SIGTERM,
+        signal_hook::consts::SIGHUP,
+    ] {
         signal_hook::flag::register(sig, stop.clone()).context("installing signal handlers")?;
     }
     let mut learner = Learner::new(cfg, &args.run_dir, args.resume.as_deref())?;

@@ -12,11 +12,11 @@
 //!  13:    Q̄_j ← ρ Q̄_j + (1 − ρ) Q_j
 //!  16: for each actor i (all at once, each on its own mini-batch):
 //!  18:    J_i = KL(π_i(·|s) ‖ π_best(·|s))                               (0 for the best actor)
-//!  19:    maximise mean_s [ (1/N) Σ_j Q_j(s, ã_i) − α_i log π_i(ã_i|s) − λ_KD J_i ]
+//!  19:    maximise mean_s [ (1/N) Σ_j Q_j(s, ã_i) − α_i log π_i(ã_i|s) − λ_KD J_i ]   (SAC: min_j)
 //!         and tune α_i toward the target entropy.
 //! ```
 
-use crate::config::{AlgoConfig, Backbone, Sharing};
+use crate::config::{ActorQ, AlgoConfig, Backbone, Sharing};
 use crate::distillation::gaussian_kl;
 use crate::ensemble::Ensemble;
 use crate::optim::Adam;
@@ -306,26 +306,27 @@ impl Selkd {
             let eps = self.noise(&[k, b, self.act_dim as i64]);
             sample(&mu, &log_std, &eps)
         };
-        // (1/N) Σ_j Q_j(s, ã_i(s)): the critics are fixed here, only the actor moves.
+        // (1/N) Σ_j Q_j(s, ã_i(s)) (or, SAC's actor, min_j): the critics are fixed here, only
+        // the actor moves.
         let x = Tensor::cat(&[s, &a], -1)
             .reshape([1, k * b, -1])
             .expand([n, k * b, -1], false);
         let q_all = self.critics.detached().forward(&x).view([n, k, b]);
+        let reduce = |q: &Tensor| match self.cfg.actor_q {
+            ActorQ::Mean => q.mean_dim(0, false, Kind::Float),
+            ActorQ::Min => q.amin(0, false),
+        };
         let q = if self.cfg.paired_critics {
             // DPD: each actor is judged by its own critics only.
-            let mut weights = vec![0.0f32; (n * k) as usize];
-            for i in 0..k {
-                let own = self.critics_of(i);
-                for &j in &own {
-                    weights[(j * k + i) as usize] = 1.0 / own.len() as f32;
-                }
-            }
-            let w = Tensor::from_slice(&weights)
-                .to_device(self.device)
-                .view([n, k, 1]);
-            (q_all * w).sum_dim_intlist(0, false, Kind::Float)
+            let per_actor: Vec<Tensor> = (0..k)
+                .map(|i| {
+                    let own = Tensor::from_slice(&self.critics_of(i)).to_device(self.device);
+                    reduce(&q_all.select(1, i).index_select(0, &own))
+                })
+                .collect();
+            Tensor::stack(&per_actor, 0)
         } else {
-            q_all.mean_dim(0, false, Kind::Float)
+            reduce(&q_all)
         };
         // Line 18: distillation toward the best actor, held fixed, on actor i's own states.
         // The reference each actor distils toward: the best actor (SELKD), or with paired critics
@@ -352,10 +353,18 @@ impl Selkd {
         } else {
             gaussian_kl(&mu, &log_std, &mu_best, &log_std_best)
         };
-        let mut kd = vec![self.cfg.kd_weight as f32; self.cfg.actors];
-        if !self.cfg.paired_critics {
-            kd[best] = 0.0;
-        }
+        // The best actor has no KD term; with `kd_actors` (ablation w/o KD) only those listed do.
+        let kd: Vec<f32> = (0..self.cfg.actors)
+            .map(|i| {
+                let distils = self.cfg.paired_critics
+                    || (i != best && self.cfg.kd_actors.as_ref().is_none_or(|l| l.contains(&i)));
+                if distils {
+                    self.cfg.kd_weight as f32
+                } else {
+                    0.0
+                }
+            })
+            .collect();
         let kd = Tensor::from_slice(&kd).to_device(self.device).view([k, 1]);
         // Line 19 (as a loss to minimise).
         let alpha = if td3 {
@@ -735,6 +744,98 @@ mod tests {
         }
     }
 
+    /// The actor objective's reduction over critics, by hand: every replay row holds the same
+    /// state, so whatever the batch draws, actor i's loss (TD3: deterministic action, no entropy;
+    /// λ_KD = 0) is −reduce_j Q_j(s0, tanh(μ_i(s0))), recomputed here with separate plain MLPs.
+    /// `mean` is SELKD's eq. 7 and REDQ's; `min` is SAC's clipped double Q. With paired critics
+    /// (DPD) the reduction runs over the actor's own critics only.
+    #[test]
+    fn actor_loss_reduces_the_critics_by_mean_or_min() {
+        for (paired, actor_q) in [
+            (false, ActorQ::Mean),
+            (false, ActorQ::Min),
+            (true, ActorQ::Mean),
+            (true, ActorQ::Min),
+        ] {
+            let (k, n) = (2usize, 4usize);
+            let cfg = AlgoConfig {
+                backbone: Backbone::Td3,
+                kd_weight: 0.0,
+                paired_critics: paired,
+                actor_q,
+                ..small(k, n, 2)
+            };
+            let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 8);
+            let s0 = [0.4f32, -0.7, 0.2];
+            let mut rb = ReplayBuffer::new(100, 3, 2, Device::Cpu);
+            for _ in 0..20 {
+                rb.push(&s0, &[0.1, 0.2], 0.5, &s0, false);
+            }
+            let critics_before = s.critics.copy();
+            let actors_before = s.actors.copy();
+            let mut stats = RoundStats::default();
+            s.update_actors(&mut rb, 0, &mut stats);
+            for i in 0..k {
+                let head = mlp(&actors_before, i as i64, &s0);
+                let x: Vec<f32> = s0
+                    .iter()
+                    .copied()
+                    .chain((0..2).map(|d| head[d].tanh() as f32))
+                    .collect();
+                let judges: Vec<usize> = if paired {
+                    (0..n).filter(|j| j * k / n == i).collect()
+                } else {
+                    (0..n).collect()
+                };
+                let qs: Vec<f64> = judges
+                    .iter()
+                    .map(|&j| mlp(&critics_before, j as i64, &x)[0])
+                    .collect();
+                let want = -match actor_q {
+                    ActorQ::Mean => qs.iter().sum::<f64>() / qs.len() as f64,
+                    ActorQ::Min => qs.iter().copied().fold(f64::INFINITY, f64::min),
+                };
+                assert!(
+                    (stats.actor_loss[i] - want).abs() < 1e-5 * want.abs().max(1.0),
+                    "paired {paired} {actor_q:?} actor {i}: loss {} vs hand-computed {want}",
+                    stats.actor_loss[i]
+                );
+            }
+        }
+    }
+
+    /// Ablation "w/o KD" (`kd_actors = [0]`): with Q ≡ 0 and α = 0 only a KD term can move an
+    /// actor, so exactly actor 0 moves (toward the best, actor 2) and actor 1, which has no KD
+    /// term, stays put, as does the best actor.
+    #[test]
+    fn without_kd_only_the_listed_actor_distils() {
+        let cfg = AlgoConfig {
+            kd_actors: Some(vec![0]),
+            kd_weight: 1.0,
+            fixed_alpha: Some(0.0),
+            lr: 1e-2,
+            ..small(3, 2, 2)
+        };
+        let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 2);
+        tch::no_grad(|| {
+            let last = s.critics.layers.last().unwrap();
+            let _ = last.weight.shallow_clone().zero_();
+            let _ = last.bias.shallow_clone().zero_();
+        });
+        let mut rb = filled_replay(3, 2, 100);
+        let before: Vec<Vec<f32>> = (0..3).map(|i| s.actor_weights(i)).collect();
+        let mut stats = RoundStats::default();
+        s.update_actors(&mut rb, 2, &mut stats);
+        let first = stats.kl_to_best.clone();
+        for _ in 0..50 {
+            s.update_actors(&mut rb, 2, &mut stats);
+        }
+        assert_ne!(s.actor_weights(0), before[0], "actor 0 distils");
+        assert!(stats.kl_to_best[0] < 0.2 * first[0]);
+        assert_eq!(s.actor_weights(1), before[1], "actor 1 has no KD term");
+        assert_eq!(s.actor_weights(2), before[2], "the best actor has no KD term");
+    }
+
     /// DPD: with paired critics every actor distils toward its peer, so two actors with nothing
     /// else to learn (Q ≡ 0, α = 0) both move and meet.
     #[test]
@@ -837,6 +938,8 @@ mod tests {
             lockstep_rounds: 0,
             weights_version: 0,
             eval_epoch: 0,
+            epochs_logged: Some(0),
+            epoch_ends: vec![],
             ranking: crate::ranking::Ranking::new(2, 1),
             wall_seconds: 0.0,
         };

@@ -70,6 +70,9 @@ pub struct Learner {
     lockstep_rounds: u64,
     weights_version: u64,
     eval_epoch: u64,
+    /// (epoch, env steps at which it ended) for every epoch whose row is not written yet. An
+    /// epoch ends at the first round boundary at or past each multiple of `eval.epoch_env_steps`.
+    epoch_ends: VecDeque<(u64, u64)>,
     eval_reported: Vec<u64>,
     /// Per actor: (epoch, success rate) of its latest evaluation; NaN for tasks without success.
     eval_success: Vec<(u64, f64)>,
@@ -111,21 +114,6 @@ impl Learner {
         std::fs::create_dir_all(run_dir.join("checkpoints"))
             .with_context(|| format!("creating {}", run_dir.display()))?;
         let metrics_path = run_dir.join("metrics.csv");
-        let fresh_metrics = resume.is_none() || !metrics_path.exists();
-        let mut metrics = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&metrics_path)
-            .with_context(|| format!("opening {}", metrics_path.display()))?;
-        if fresh_metrics {
-            let per = |p: &str| {
-                (0..k)
-                    .map(|i| format!("{p}_{i}"))
-                    .collect::<Vec<_>>()
-                    .join(",")
-            };
-            writeln!(metrics, "epoch,env_steps,wall_s,critic_updates,updates_per_s,env_steps_per_s,critic_loss,q_mean,best,{},{},{},{},policy_lag_mean,dropped,{}", per("eval_return"), per("score"), per("alpha"), per("kl_to_best"), per("eval_success"))?;
-        }
         let resumed = match resume {
             Some(dir) => {
                 let state = checkpoint::load(dir, &mut selkd, &mut replay)
@@ -143,9 +131,34 @@ impl Learner {
             }
             None => None,
         };
+        let eval_epoch = resumed.as_ref().map_or(0, |s| s.eval_epoch);
+        // Epochs whose row was written when the checkpoint was taken; the evaluation of any later
+        // epoch was in flight and is asked for again.
+        let epochs_logged = resumed
+            .as_ref()
+            .map_or(0, |s| s.epochs_logged.unwrap_or(s.eval_epoch));
+        if resumed.is_some() && metrics_path.exists() {
+            // Rows written after the checkpoint (by the run that was stopped or killed) are
+            // written again by this one: drop them so each epoch has one row.
+            truncate_metrics(&metrics_path, epochs_logged)?;
+        }
+        let fresh_metrics = resume.is_none() || !metrics_path.exists();
+        let mut metrics = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&metrics_path)
+            .with_context(|| format!("opening {}", metrics_path.display()))?;
+        if fresh_metrics {
+            let per = |p: &str| {
+                (0..k)
+                    .map(|i| format!("{p}_{i}"))
+                    .collect::<Vec<_>>()
+                    .join(",")
+            };
+            writeln!(metrics, "epoch,env_steps,wall_s,critic_updates,updates_per_s,env_steps_per_s,critic_loss,q_mean,best,{},{},{},{},policy_lag_mean,dropped,{}", per("eval_return"), per("score"), per("alpha"), per("kl_to_best"), per("eval_success"))?;
+        }
         let every = cfg.run.checkpoint_every;
         let inserted = resumed.as_ref().map_or(0, |s| s.inserted);
-        let eval_epoch = resumed.as_ref().map_or(0, |s| s.eval_epoch);
         Ok(Self {
             limiter: RateLimiter::new(
                 k,
@@ -169,7 +182,10 @@ impl Learner {
             lockstep_rounds: resumed.as_ref().map_or(0, |s| s.lockstep_rounds),
             weights_version: resumed.as_ref().map_or(1, |s| s.weights_version),
             eval_epoch,
-            eval_reported: vec![eval_epoch; k],
+            epoch_ends: resumed
+                .as_ref()
+                .map_or_else(VecDeque::new, |s| s.epoch_ends.iter().copied().collect()),
+            eval_reported: vec![epochs_logged; k],
             eval_success: vec![(0, f64::NAN); k],
             pending: (0..k).map(|_| VecDeque::new()).collect(),
             dropped_nonfinite: 0,
@@ -178,7 +194,7 @@ impl Learner {
             lag_count: 0,
             lag_max: 0,
             last_stats: RoundStats::default(),
-            epochs_logged: eval_epoch,
+            epochs_logged,
             next_checkpoint: inserted.checked_div(every).map_or(0, |n| (n + 1) * every),
             started: Instant::now(),
             wall_offset: resumed.as_ref().map_or(0.0, |s| s.wall_seconds),
@@ -464,6 +480,13 @@ impl Learner {
         let epoch = self.inserted / self.cfg.eval.epoch_env_steps;
         if epoch > self.eval_epoch {
             self.eval_epoch = epoch;
+            // Sync: the evaluation runs after this round (rounds store K steps), so the epoch ends
+            // at the round's end; async: now.
+            let end = match self.cfg.run.mode {
+                Mode::Sync => self.inserted.div_ceil(self.k as u64) * self.k as u64,
+                Mode::Async => self.inserted,
+            };
+            self.epoch_ends.push_back((epoch, end));
         }
     }
 
@@ -608,8 +631,9 @@ impl Learner {
             "dropped_malformed": self.dropped_malformed,
             "wall_s": self.wall(),
         });
-        println!("PROGRESS {line}");
-        let _ = std::io::stdout().flush();
+        // The launcher may be gone (its stdout closed): progress is best effort, never a panic.
+        let mut out = std::io::stdout().lock();
+        let _ = writeln!(out, "PROGRESS {line}").and_then(|()| out.flush());
     }
 
     /// One metrics row per epoch whose evaluations are all in.
@@ -618,6 +642,13 @@ impl Learner {
         while self.epochs_logged < complete.min(self.eval_epoch) {
             self.epochs_logged += 1;
             let e = self.epochs_logged;
+            while self.epoch_ends.front().is_some_and(|&(epoch, _)| epoch < e) {
+                self.epoch_ends.pop_front();
+            }
+            let env_steps = match self.epoch_ends.front() {
+                Some(&(epoch, steps)) if epoch == e => steps,
+                _ => e * self.cfg.eval.epoch_env_steps,
+            };
             let wall = self.wall();
             let join = |v: &[f64]| {
                 v.iter()
@@ -656,8 +687,7 @@ impl Learner {
             };
             writeln!(
                 self.metrics,
-                "{e},{},{wall:.3},{},{:.3},{:.3},{:.6},{:.6},{},{},{},{},{},{:.3},{},{}",
-                e * self.cfg.eval.epoch_env_steps,
+                "{e},{env_steps},{wall:.3},{},{:.3},{:.3},{:.6},{:.6},{},{},{},{},{},{:.3},{},{}",
                 self.selkd.critic_updates,
                 self.selkd.critic_updates as f64 / wall.max(1e-9),
                 self.inserted as f64 / wall.max(1e-9),
@@ -679,7 +709,7 @@ impl Learner {
             self.metrics.flush()?;
             tracing::info!(
                 epoch = e,
-                env_steps = e * self.cfg.eval.epoch_env_steps,
+                env_steps,
                 best = self.ranking.best(),
                 "evaluation returns {:?}",
                 eval
@@ -701,6 +731,8 @@ impl Learner {
             lockstep_rounds: self.lockstep_rounds,
             weights_version: self.weights_version,
             eval_epoch: self.eval_epoch,
+            epochs_logged: Some(self.epochs_logged),
+            epoch_ends: self.epoch_ends.iter().copied().collect(),
             ranking: self.ranking.clone(),
             wall_seconds: self.wall(),
         };
@@ -717,6 +749,25 @@ impl Learner {
         );
         Ok(())
     }
+}
+
+/// Keeps the header and the rows of epochs 1..=`epochs` of `metrics.csv` (written to a temporary
+/// file, then renamed over it, so a crash leaves the old or the new file, never half of one).
+fn truncate_metrics(path: &Path, epochs: u64) -> Result<()> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut kept = String::new();
+    for (i, line) in text.lines().enumerate() {
+        let epoch = line.split(',').next().and_then(|v| v.parse::<u64>().ok());
+        if i == 0 || epoch.is_some_and(|e| e <= epochs) {
+            kept.push_str(line);
+            kept.push('\n');
+        }
+    }
+    let tmp = path.with_extension("csv.tmp");
+    std::fs::write(&tmp, kept).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("replacing {}", path.display()))?;
+    Ok(())
 }
 
 fn same_control(a: &Control, b: &Control) -> bool {

@@ -231,11 +231,11 @@ fn a_worker_that_does_not_fit_the_run_is_refused_with_a_clear_error() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-#[test]
-fn ctrl_c_stops_everything_cleanly_with_a_checkpoint() {
-    let dir = temp_dir("ctrlc");
+/// Starts a long run, waits until it has `steps` env steps, and sends `signal` to `selkd`.
+/// Returns (exit code, selkd's stderr after the first line, run id).
+fn stop_a_run_with(dir: &std::path::Path, signal: i32, steps: u64) -> (Option<i32>, String, String) {
     let mut child = spawn(train(
-        &dir,
+        dir,
         &small_run(&["algo.actors=2", "run.total_env_steps=1000000"]),
     ));
     let mut stderr = BufReader::new(child.stderr.take().unwrap());
@@ -248,28 +248,67 @@ fn ctrl_c_stops_everything_cleanly_with_a_checkpoint() {
         .trim_end_matches(':')
         .to_string();
     let t0 = Instant::now();
-    while env_steps_so_far(&dir) < 1000 {
+    while env_steps_so_far(dir) < steps {
         assert!(
             t0.elapsed() < Duration::from_secs(120),
             "no progress: {}",
-            log(&dir, "learner.log")
+            log(dir, "learner.log")
         );
         std::thread::sleep(Duration::from_millis(100));
     }
-    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    unsafe { libc::kill(child.id() as i32, signal) };
     let mut rest = String::new();
     std::io::Read::read_to_string(&mut stderr, &mut rest).unwrap();
     let status = child.wait().unwrap();
-    assert_eq!(status.code(), Some(130), "{rest}");
-    assert!(rest.contains("stopped; checkpoint at"), "{rest}");
-    let state: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(dir.join("checkpoints/final/state.json")).unwrap(),
-    )
-    .unwrap();
-    assert!(state["inserted"].as_u64().unwrap() >= 1000);
-    assert!(
-        worker_pids(&run_id, 0).is_empty() && worker_pids(&run_id, 1).is_empty(),
-        "workers left running"
+    (status.code(), rest, run_id)
+}
+
+/// Ctrl-C, SIGTERM (kill, timeout, systemd, docker, Slurm) and SIGHUP (a closed terminal) each
+/// stop the run the same way: a final checkpoint, no process left, no panic, exit 128 + signal.
+#[test]
+fn ctrl_c_sigterm_and_sighup_stop_everything_cleanly_with_a_checkpoint() {
+    for (signal, code) in [(libc::SIGINT, 130), (libc::SIGTERM, 143), (libc::SIGHUP, 129)] {
+        let dir = temp_dir(&format!("stop{signal}"));
+        let (status, rest, run_id) = stop_a_run_with(&dir, signal, 1000);
+        assert_eq!(status, Some(code), "signal {signal}: {rest}");
+        assert!(rest.contains("stopped; checkpoint at"), "{rest}");
+        let state: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.join("checkpoints/final/state.json")).unwrap(),
+        )
+        .unwrap();
+        assert!(state["inserted"].as_u64().unwrap() >= 1000);
+        assert!(
+            worker_pids(&run_id, 0).is_empty() && worker_pids(&run_id, 1).is_empty(),
+            "workers left running"
+        );
+        let learner = log(&dir, "learner.log");
+        assert!(!learner.contains("panicked"), "{learner}");
+        assert!(!learner.contains('\x1b'), "no colour codes in log files");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
+
+/// A stopped run resumed into its own directory continues its metrics.csv: one header, one row
+/// per epoch, epochs 1, 2, 3, … without a gap or a repeat, up to the new budget.
+#[test]
+fn a_stopped_run_resumed_in_place_continues_its_metrics_one_row_per_epoch() {
+    let dir = temp_dir("resume-in-place");
+    let (status, rest, _) = stop_a_run_with(&dir, libc::SIGTERM, 1500);
+    assert_eq!(status, Some(143), "{rest}");
+    let mut more = small_run(&["algo.actors=2", "run.total_env_steps=4000"]);
+    more.extend([
+        "--resume".to_string(),
+        dir.join("checkpoints/final").display().to_string(),
+    ]);
+    assert_success(&run(train(&dir, &more)), &dir);
+    let text = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
+    assert_eq!(text.matches("epoch,env_steps").count(), 1, "{text}");
+    let (h, rows) = metrics(&dir);
+    let epochs = column(&h, &rows, "epoch");
+    assert_eq!(epochs, (1..=4).map(|e| e as f64).collect::<Vec<_>>(), "{text}");
+    assert_eq!(
+        column(&h, &rows, "env_steps"),
+        vec![1000.0, 2000.0, 3000.0, 4000.0]
     );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -222,3 +222,27 @@ fn every_locomotion_task_trains_through_the_real_processes_without_losing_data()
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
+
+/// The K sweep's K = 3 with the paper's 1000-step epochs: each epoch ends at the first round
+/// boundary (a multiple of K = 3 env steps) at or past each multiple of 1000, which the metrics'
+/// `env_steps` column records: 1002, 2001, then the budget, 3000. Every actor is evaluated every
+/// epoch on the same episode seeds (common random numbers), so two actors with equal weights would
+/// tie; here we check each epoch has every actor's evaluation.
+#[test]
+fn any_k_evaluates_at_the_first_round_boundary_past_each_epoch() {
+    let dir = temp_dir("k3-epochs");
+    let sets = small_run(&["algo.actors=3", "run.total_env_steps=3000"]);
+    assert_success(&run(train(&dir, &sets)), &dir);
+    let (h, rows) = metrics(&dir);
+    assert_eq!(column(&h, &rows, "epoch"), vec![1.0, 2.0, 3.0]);
+    assert_eq!(column(&h, &rows, "env_steps"), vec![1002.0, 2001.0, 3000.0]);
+    for i in 0..3 {
+        assert!(
+            column(&h, &rows, &format!("eval_return_{i}"))
+                .iter()
+                .all(|v| v.is_finite()),
+            "actor {i} evaluated every epoch"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
