@@ -67,6 +67,8 @@ pub fn run(args: TrainArgs) -> Result<i32> {
         None => QUICK_CONFIG.to_string(),
     };
     let cfg = Config::from_toml_with_overrides(&text, &args.set)?;
+    // A device that is not there is a config error, found before any process starts.
+    selkd_learner::service::parse_device(&cfg.run.device)?;
     if let Some(r) = &args.resume {
         if !r.join("state.json").exists() {
             bail!("--resume {}: not a checkpoint directory (no state.json); pick one under RUN/checkpoints/", r.display());
@@ -328,13 +330,18 @@ async fn supervise(
             Ok(128 + stopped_by.unwrap_or(libc::SIGINT))
         }
         _ => {
+            // The learner's own error line, else its last ERROR, else its last line.
             let last = std::fs::read_to_string(&learner_log)
                 .ok()
                 .and_then(|t| {
-                    t.lines()
+                    let lines: Vec<&str> = t.lines().filter(|l| !l.trim().is_empty()).collect();
+                    lines
+                        .iter()
                         .rev()
-                        .find(|l| !l.trim().is_empty())
-                        .map(str::to_string)
+                        .find(|l| l.starts_with("learner: error:"))
+                        .or_else(|| lines.iter().rev().find(|l| l.contains("ERROR")))
+                        .or(lines.last())
+                        .map(|l| l.to_string())
                 })
                 .unwrap_or_default();
             say!(

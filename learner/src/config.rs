@@ -277,8 +277,12 @@ impl Config {
             Err(e) => return bad(one_line(&e.to_string())),
             Ok(_) => {}
         }
-        if a.actors == 0 {
-            return bad("algo.actors (K) must be at least 1".into());
+        if a.actors == 0 || a.actors > selkd_protocol::MAX_ACTORS {
+            return bad(format!(
+                "algo.actors (K = {}) must be between 1 and {}",
+                a.actors,
+                selkd_protocol::MAX_ACTORS
+            ));
         }
         if a.critics == 0 {
             return bad("algo.critics (N) must be at least 1".into());
@@ -294,10 +298,20 @@ impl Config {
                 "algo.utd, algo.batch_size and algo.replay_capacity must be at least 1".into(),
             );
         }
-        if a.hidden.is_empty() || a.hidden.contains(&0) {
+        if a.hidden.is_empty()
+            || a.hidden.contains(&0)
+            || a.hidden.len() > selkd_protocol::MAX_HIDDEN_LAYERS
+        {
             return bad(format!(
-                "algo.hidden = {:?} needs at least one layer, each of size ≥ 1",
-                a.hidden
+                "algo.hidden = {:?} needs 1 to {} layers, each of size ≥ 1",
+                a.hidden,
+                selkd_protocol::MAX_HIDDEN_LAYERS
+            ));
+        }
+        if a.batch_size > a.replay_capacity {
+            return bad(format!(
+                "algo.batch_size ({}) must not exceed algo.replay_capacity ({})",
+                a.batch_size, a.replay_capacity
             ));
         }
         if !(a.lr > 0.0 && a.lr.is_finite() && a.alpha_lr > 0.0 && a.alpha_lr.is_finite()) {

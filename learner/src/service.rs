@@ -514,7 +514,7 @@ impl Learner {
             }
             self.lockstep_rounds += 1;
             if self.inserted >= self.warmup_total() {
-                self.train_round();
+                self.train_round()?;
                 trained = true;
                 // Hand the new weights out before the next round (the caller publishes them).
                 return Ok(trained);
@@ -527,16 +527,32 @@ impl Learner {
     /// a worker's behaviour policy trails by at most `max_policy_lag` plus the round in flight.
     fn advance_async(&mut self) -> Result<bool> {
         if self.selkd.actor_updates < self.limiter.rounds_due(self.inserted) {
-            self.train_round();
+            self.train_round()?;
             return Ok(true);
         }
         Ok(false)
     }
 
-    fn train_round(&mut self) {
+    /// One round; a non-finite loss (the networks diverged) ends the run with an error before
+    /// the weights are published or checkpointed, so the last checkpoint stays a good one.
+    fn train_round(&mut self) -> Result<()> {
         let best = self.ranking.best();
         self.last_stats = self.selkd.train_round(&mut self.replay, best);
+        let st = &self.last_stats;
+        if !st.critic_loss.is_finite()
+            || !st.q_mean.is_finite()
+            || st.actor_loss.iter().any(|v| !v.is_finite())
+        {
+            bail!(
+                "training diverged in round {} ({} env steps): critic loss {}, actor losses {:?}; nothing after the last checkpoint is kept (lower algo.lr, or check the env's rewards)",
+                self.selkd.actor_updates,
+                self.inserted,
+                st.critic_loss,
+                st.actor_loss
+            );
+        }
         self.weights_version += 1;
+        Ok(())
     }
 
     fn control(&self, stop: bool) -> Control {

@@ -254,7 +254,8 @@ impl Services {
     }
 }
 
-/// Room for restarted workers overlapping their dead predecessors until cleanup.
+/// Room for restarted workers overlapping their dead predecessors until cleanup (ports, and
+/// nodes: iceoryx2 allows 20 nodes per service unless told more, too few for K ≥ 20).
 pub fn max_ports(actors: usize) -> usize {
     2 * actors + 4
 }
@@ -413,6 +414,7 @@ pub mod services {
             .service_builder(&s.transitions()?)
             .publish_subscribe::<[f32]>()
             .user_header::<TransitionHeader>()
+            .max_nodes(max_ports(actors))
             .max_publishers(max_ports(actors))
             .max_subscribers(2)
             .subscriber_max_buffer_size(TRANSITION_BUFFER)
@@ -425,6 +427,7 @@ pub mod services {
         Ok(node
             .service_builder(&s.reports()?)
             .publish_subscribe::<Report>()
+            .max_nodes(max_ports(actors))
             .max_publishers(max_ports(actors))
             .max_subscribers(2)
             .subscriber_max_buffer_size(4 * MAX_ACTORS)
@@ -439,6 +442,7 @@ pub mod services {
             $node
                 .service_builder(&$name)
                 .publish_subscribe::<$payload>()
+                .max_nodes(MAX_ACTORS * 2 + 4)
                 .max_publishers(2)
                 .max_subscribers(MAX_ACTORS * 2 + 4)
                 .history_size(1)
@@ -469,6 +473,7 @@ pub mod services {
         Ok(node
             .service_builder(&s.to_learner()?)
             .event()
+            .max_nodes(max_ports(actors) + 2)
             .max_notifiers(max_ports(actors) + 2)
             .max_listeners(2)
             .open_or_create()?)
@@ -478,6 +483,7 @@ pub mod services {
         Ok(node
             .service_builder(&s.to_workers()?)
             .event()
+            .max_nodes(MAX_ACTORS * 2 + 4)
             .max_notifiers(2)
             .max_listeners(MAX_ACTORS * 2 + 4)
             .open_or_create()?)

@@ -312,3 +312,54 @@ fn a_stopped_run_resumed_in_place_continues_its_metrics_one_row_per_epoch() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Divergence (`algo.lr = 1e30`): the run stops with a one-line error naming the round, exits
+/// non-zero, and keeps its last good checkpoint (taken during warm-up) instead of writing a
+/// final one full of NaN.
+#[test]
+fn divergence_stops_the_run_with_a_clear_error_and_keeps_the_last_good_checkpoint() {
+    let dir = temp_dir("diverge");
+    let sets = small_run(&[
+        "algo.actors=2",
+        "algo.lr=1e30",
+        "algo.warmup_steps=1000",
+        "run.checkpoint_every=600",
+        "run.total_env_steps=6000",
+    ]);
+    let out = run(train(&dir, &sets));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("training diverged in round"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(dir.join("checkpoints/step-600/state.json").exists());
+    assert!(
+        !dir.join("checkpoints/final").exists(),
+        "no checkpoint of diverged weights"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// K = 20 actors (iceoryx2's default allows 20 nodes per service, so this needs the limits set
+/// from K), and K above the protocol's 64 is a config error before any process starts.
+#[test]
+fn twenty_actors_run_and_more_than_sixty_four_are_refused() {
+    let dir = temp_dir("k20");
+    let sets = small_run(&["algo.actors=20", "run.total_env_steps=2000"]);
+    assert_success(&run(train(&dir, &sets)), &dir);
+    let (h, rows) = metrics(&dir);
+    assert_eq!(column(&h, &rows, "env_steps").last(), Some(&2000.0));
+    let _ = std::fs::remove_dir_all(&dir);
+    for (set, key) in [
+        ("algo.actors=65", "algo.actors"),
+        ("algo.batch_size=200000", "algo.replay_capacity"),
+        ("algo.hidden=[8,8,8,8,8,8,8,8,8]", "algo.hidden"),
+        ("run.device=cuda", "run.device"),
+    ] {
+        let out = run(train(&dir.join("x"), &["--set".into(), set.into()]));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{set}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{set}: {err}");
+        assert!(err.contains(key), "{set}: {err}");
+        assert!(!dir.join("x").exists(), "{set}: nothing started");
+    }
+}
