@@ -314,27 +314,31 @@ fn a_stopped_run_resumed_in_place_continues_its_metrics_one_row_per_epoch() {
 }
 
 /// Divergence (`algo.lr = 1e30`): the run stops with a one-line error naming the round, exits
-/// non-zero, and keeps its last good checkpoint (taken during warm-up) instead of writing a
-/// final one full of NaN.
+/// non-zero, and keeps its last good checkpoint: a healthy run's final checkpoint, resumed in
+/// place with the diverging learning rate, is left as it was (no checkpoint full of NaN replaces
+/// it).
 #[test]
 fn divergence_stops_the_run_with_a_clear_error_and_keeps_the_last_good_checkpoint() {
     let dir = temp_dir("diverge");
-    let sets = small_run(&[
-        "algo.actors=2",
-        "algo.lr=1e30",
-        "algo.warmup_steps=1000",
-        "run.checkpoint_every=600",
-        "run.total_env_steps=6000",
+    assert_success(
+        &run(train(&dir, &small_run(&["algo.actors=2", "run.total_env_steps=1000"]))),
+        &dir,
+    );
+    let good = std::fs::read(dir.join("checkpoints/final/model.safetensors")).unwrap();
+    let mut sets = small_run(&["algo.actors=2", "algo.lr=1e30", "run.total_env_steps=4000"]);
+    sets.extend([
+        "--resume".to_string(),
+        dir.join("checkpoints/final").display().to_string(),
     ]);
     let out = run(train(&dir, &sets));
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("training diverged in round"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
-    assert!(dir.join("checkpoints/step-600/state.json").exists());
-    assert!(
-        !dir.join("checkpoints/final").exists(),
-        "no checkpoint of diverged weights"
+    assert_eq!(
+        std::fs::read(dir.join("checkpoints/final/model.safetensors")).unwrap(),
+        good,
+        "the last good checkpoint is kept"
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
