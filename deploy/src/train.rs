@@ -60,20 +60,22 @@ enum Event {
 }
 
 pub fn run(args: TrainArgs) -> Result<i32> {
-    let text = match &args.config {
-        Some(p) => {
-            std::fs::read_to_string(p).with_context(|| format!("reading config {}", p.display()))?
-        }
-        None => QUICK_CONFIG.to_string(),
-    };
-    let cfg = Config::from_toml_with_overrides(&text, &args.set)?;
-    // A device that is not there is a config error, found before any process starts.
-    selkd_learner::service::parse_device(&cfg.run.device)?;
     if let Some(r) = &args.resume {
         if !r.join("state.json").exists() {
             bail!("--resume {}: not a checkpoint directory (no state.json); pick one under RUN/checkpoints/", r.display());
         }
     }
+    // A resumed run keeps the checkpoint's config unless a --config is given; --set applies on top.
+    let text = match (&args.config, &args.resume) {
+        (Some(p), _) => {
+            std::fs::read_to_string(p).with_context(|| format!("reading config {}", p.display()))?
+        }
+        (None, Some(r)) => checkpoint_config(r)?,
+        (None, None) => QUICK_CONFIG.to_string(),
+    };
+    let cfg = Config::from_toml_with_overrides(&text, &args.set)?;
+    // A device that is not there is a config error, found before any process starts.
+    selkd_learner::service::parse_device(&cfg.run.device)?;
     let bin_dir = std::env::current_exe()?
         .parent()
         .map(Path::to_path_buf)
@@ -90,12 +92,34 @@ pub fn run(args: TrainArgs) -> Result<i32> {
     let stamp = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)?
         .as_secs();
-    let run_dir = args
-        .run_dir
-        .clone()
-        .unwrap_or_else(|| PathBuf::from("runs").join(format!("{}-{stamp}", cfg.run.env)));
+    // A resumed run continues in its own directory (RUN/checkpoints/NAME → RUN) unless told otherwise.
+    let run_dir = match (&args.run_dir, &args.resume) {
+        (Some(d), _) => d.clone(),
+        (None, Some(r)) => r
+            .canonicalize()
+            .ok()
+            .and_then(|c| c.parent()?.parent().map(Path::to_path_buf))
+            .with_context(|| {
+                format!(
+                    "finding the run directory of {}; pass --run-dir",
+                    r.display()
+                )
+            })?,
+        (None, None) => PathBuf::from("runs").join(format!("{}-{stamp}", cfg.run.env)),
+    };
     std::fs::create_dir_all(run_dir.join("logs"))
         .with_context(|| format!("creating run directory {}", run_dir.display()))?;
+    // One launcher per run directory; the lock goes with the process, so a dead holder's is free.
+    let _lock = lock_run_dir(&run_dir)?;
+    if args.resume.is_none()
+        && (run_dir.join("metrics.csv").exists() || run_dir.join("checkpoints").exists())
+    {
+        bail!(
+            "run directory {} already holds a run; continue it with --resume {}/checkpoints/final (or the one `checkpoints/latest` names), or choose another --run-dir",
+            run_dir.display(),
+            run_dir.display()
+        );
+    }
     std::fs::write(run_dir.join("config.toml"), cfg.to_toml())?;
     let run_id = format!(
         "r{}x{:x}",
@@ -124,6 +148,31 @@ pub fn run(args: TrainArgs) -> Result<i32> {
         &learner_bin,
         &worker_bin,
     ))
+}
+
+/// The config a checkpoint was trained with, as TOML.
+fn checkpoint_config(checkpoint: &Path) -> Result<String> {
+    let path = checkpoint.join("state.json");
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let state: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+    let cfg: Config = serde_json::from_value(state["config"].clone())
+        .with_context(|| format!("reading the config in {}", path.display()))?;
+    Ok(cfg.to_toml())
+}
+
+/// One launcher per run directory (`RUN/.lock`, which names the holder's pid).
+fn lock_run_dir(run_dir: &Path) -> Result<std::fs::File> {
+    let path = run_dir.join(".lock");
+    match selkd_protocol::lock::pid_lock(&path) {
+        Ok(f) => Ok(f),
+        Err(selkd_protocol::lock::LockError::Held(pid)) => bail!(
+            "run directory {} is in use by another selkd (pid {pid}); wait for it, stop it, or choose another --run-dir",
+            run_dir.display()
+        ),
+        Err(e) => Err(e).with_context(|| format!("locking {}", path.display())),
+    }
 }
 
 fn log_file(run_dir: &Path, name: &str) -> Result<std::fs::File> {

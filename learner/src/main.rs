@@ -70,6 +70,22 @@ fn run(args: &Args) -> Result<Outcome> {
     ] {
         signal_hook::flag::register(sig, stop.clone()).context("installing signal handlers")?;
     }
+    let _lock = lock_run_id(&args.run_id)?;
     let mut learner = Learner::new(cfg, &args.run_dir, args.resume.as_deref())?;
     learner.run(&args.run_id, stop)
+}
+
+/// One learner per run id: two would both accept the same workers (split brain).
+fn lock_run_id(run_id: &str) -> Result<std::fs::File> {
+    selkd_protocol::Services::new(run_id).transitions()?; // the run id must be a valid name
+    let path = std::env::temp_dir().join(format!("selkd-learner-{run_id}.lock"));
+    match selkd_protocol::lock::pid_lock(&path) {
+        Ok(f) => Ok(f),
+        Err(selkd_protocol::lock::LockError::Held(pid)) => {
+            anyhow::bail!(
+                "run id `{run_id}` already has a learner (pid {pid}); pick another --run-id"
+            )
+        }
+        Err(e) => Err(e).with_context(|| format!("locking {}", path.display())),
+    }
 }

@@ -833,7 +833,11 @@ mod tests {
         assert_ne!(s.actor_weights(0), before[0], "actor 0 distils");
         assert!(stats.kl_to_best[0] < 0.2 * first[0]);
         assert_eq!(s.actor_weights(1), before[1], "actor 1 has no KD term");
-        assert_eq!(s.actor_weights(2), before[2], "the best actor has no KD term");
+        assert_eq!(
+            s.actor_weights(2),
+            before[2],
+            "the best actor has no KD term"
+        );
     }
 
     /// DPD: with paired critics every actor distils toward its peer, so two actors with nothing

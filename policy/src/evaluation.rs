@@ -37,7 +37,11 @@ impl Evaluation {
 }
 
 /// Plays one episode per seed with the deterministic action `tanh(μ)`.
-pub fn evaluate(env: &mut dyn Env, policy: &Actor, seeds: impl IntoIterator<Item = u64>) -> Evaluation {
+pub fn evaluate(
+    env: &mut dyn Env,
+    policy: &Actor,
+    seeds: impl IntoIterator<Item = u64>,
+) -> Evaluation {
     let mut out = Evaluation::default();
     for seed in seeds {
         let mut obs = env.reset(Some(seed));
@@ -59,7 +63,11 @@ pub fn evaluate(env: &mut dyn Env, policy: &Actor, seeds: impl IntoIterator<Item
 /// Seed of evaluation episode `episode` of epoch `epoch` in a run seeded `run_seed`: the same for
 /// every actor (common random numbers).
 pub fn epoch_seed(run_seed: u64, epoch: u64, episode: u64) -> u64 {
-    mix(run_seed, 0x65_7661_6c00 ^ epoch.wrapping_mul(0x1_0000_0001), episode)
+    mix(
+        run_seed,
+        0x65_7661_6c00 ^ epoch.wrapping_mul(0x1_0000_0001),
+        episode,
+    )
 }
 
 /// Seed of re-evaluation episode `episode` after training: one stream for every run, method and
@@ -90,6 +98,10 @@ mod tests {
         let n = all.len();
         all.sort_unstable();
         all.dedup();
-        assert_eq!(all.len(), n, "no seed is played twice across epochs, runs and re-evaluation");
+        assert_eq!(
+            all.len(),
+            n,
+            "no seed is played twice across epochs, runs and re-evaluation"
+        );
     }
 }

@@ -15,6 +15,8 @@
 //! gets the current ones at once. Transitions are never dropped: the learner's buffer is sized
 //! above what the budgets in [`Control`] let workers have in flight, and overflow is off.
 
+pub mod lock;
+
 use iceoryx2::prelude::*;
 
 /// Bumped whenever a message layout or meaning changes; checked in the handshake.

@@ -233,7 +233,11 @@ fn a_worker_that_does_not_fit_the_run_is_refused_with_a_clear_error() {
 
 /// Starts a long run, waits until it has `steps` env steps, and sends `signal` to `selkd`.
 /// Returns (exit code, selkd's stderr after the first line, run id).
-fn stop_a_run_with(dir: &std::path::Path, signal: i32, steps: u64) -> (Option<i32>, String, String) {
+fn stop_a_run_with(
+    dir: &std::path::Path,
+    signal: i32,
+    steps: u64,
+) -> (Option<i32>, String, String) {
     let mut child = spawn(train(
         dir,
         &small_run(&["algo.actors=2", "run.total_env_steps=1000000"]),
@@ -267,7 +271,11 @@ fn stop_a_run_with(dir: &std::path::Path, signal: i32, steps: u64) -> (Option<i3
 /// stop the run the same way: a final checkpoint, no process left, no panic, exit 128 + signal.
 #[test]
 fn ctrl_c_sigterm_and_sighup_stop_everything_cleanly_with_a_checkpoint() {
-    for (signal, code) in [(libc::SIGINT, 130), (libc::SIGTERM, 143), (libc::SIGHUP, 129)] {
+    for (signal, code) in [
+        (libc::SIGINT, 130),
+        (libc::SIGTERM, 143),
+        (libc::SIGHUP, 129),
+    ] {
         let dir = temp_dir(&format!("stop{signal}"));
         let (status, rest, run_id) = stop_a_run_with(&dir, signal, 1000);
         assert_eq!(status, Some(code), "signal {signal}: {rest}");
@@ -305,7 +313,11 @@ fn a_stopped_run_resumed_in_place_continues_its_metrics_one_row_per_epoch() {
     assert_eq!(text.matches("epoch,env_steps").count(), 1, "{text}");
     let (h, rows) = metrics(&dir);
     let epochs = column(&h, &rows, "epoch");
-    assert_eq!(epochs, (1..=4).map(|e| e as f64).collect::<Vec<_>>(), "{text}");
+    assert_eq!(
+        epochs,
+        (1..=4).map(|e| e as f64).collect::<Vec<_>>(),
+        "{text}"
+    );
     assert_eq!(
         column(&h, &rows, "env_steps"),
         vec![1000.0, 2000.0, 3000.0, 4000.0]
@@ -321,7 +333,10 @@ fn a_stopped_run_resumed_in_place_continues_its_metrics_one_row_per_epoch() {
 fn divergence_stops_the_run_with_a_clear_error_and_keeps_the_last_good_checkpoint() {
     let dir = temp_dir("diverge");
     assert_success(
-        &run(train(&dir, &small_run(&["algo.actors=2", "run.total_env_steps=1000"]))),
+        &run(train(
+            &dir,
+            &small_run(&["algo.actors=2", "run.total_env_steps=1000"]),
+        )),
         &dir,
     );
     let good = std::fs::read(dir.join("checkpoints/final/model.safetensors")).unwrap();
@@ -366,4 +381,57 @@ fn twenty_actors_run_and_more_than_sixty_four_are_refused() {
         assert!(err.contains(key), "{set}: {err}");
         assert!(!dir.join("x").exists(), "{set}: nothing started");
     }
+}
+
+/// One launcher per run directory and one learner per run id: the second is refused with a
+/// message naming the holder's pid; a stopped run's directory is not reused by a new run unless
+/// it resumes; once the holder is gone its lock is free.
+#[test]
+fn a_second_launcher_or_learner_is_refused_naming_the_holder() {
+    let dir = temp_dir("locked");
+    let mut first = spawn(train(
+        &dir,
+        &small_run(&["algo.actors=2", "run.total_env_steps=1000000"]),
+    ));
+    let t0 = Instant::now();
+    while env_steps_so_far(&dir) < 500 {
+        assert!(t0.elapsed() < Duration::from_secs(120), "no progress");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let out = run(train(&dir, &small_run(&["algo.actors=2"])));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains(&format!("in use by another selkd (pid {})", first.id())),
+        "{err}"
+    );
+    // Two learners with one run id.
+    let run_id = format!("lock{}", std::process::id());
+    let learner = |d: &std::path::Path| {
+        let mut c = std::process::Command::new(bin("learner"));
+        c.args(["--run-id", &run_id, "--run-dir"]).arg(d);
+        c
+    };
+    let mut a = spawn(learner(&dir.join("l1")));
+    std::thread::sleep(Duration::from_millis(1500));
+    let out = run(learner(&dir.join("l2")));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains(&format!("already has a learner (pid {})", a.id())),
+        "{err}"
+    );
+    let _ = a.kill();
+    let _ = a.wait();
+    unsafe { libc::kill(first.id() as i32, libc::SIGTERM) };
+    assert_eq!(first.wait().unwrap().code(), Some(143));
+    // The holder is gone: the directory is free, but a new run may not overwrite it.
+    let out = run(train(&dir, &small_run(&["algo.actors=2"])));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("already holds a run") && err.contains("--resume"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }
