@@ -159,12 +159,21 @@ fn task_figures(
         return Ok(format!("{label}, `{}`: no finished run of these methods.\n\n", task.name));
     }
     let mut lines = Vec::new();
+    // Figure 3's and 4's numbers, for whoever wants to check or redraw them.
+    let mut data = String::from("method,env_steps,seeds,mean,std,actors_mean\n");
     let mut stds = Vec::new();
     let mut bars = Vec::new();
     for g in &groups {
         let (ranked, mean) = curves(&g.finished, metric)?;
         let (m, sd) = (ranked.mean(), ranked.std());
         let n = g.finished.len();
+        let am = mean.mean();
+        for (i, x) in ranked.grid.iter().enumerate() {
+            // The actors' mean has its own grid only if a run lacks some actor's column; both
+            // come from the same steps, so they match.
+            let a = mean.grid.iter().position(|g| g == x).map_or(f64::NAN, |j| am[j]);
+            let _ = writeln!(data, "{},{x},{n},{},{},{a}", g.method, m[i], sd[i]);
+        }
         lines.push(Series {
             label: format!("{} (mean of {n} seeds, band ± ½ std)", g.method),
             points: ranked.grid.iter().copied().zip(m.iter().copied()).collect(),
@@ -215,6 +224,9 @@ fn task_figures(
     figure::write(&curve.svg(), &figdir.join(stem))?;
     let _ = writeln!(md, "![{label}: {}](figures/{stem}.png) ([SVG](figures/{stem}.svg))\n", task.name);
     if methods.is_none() {
+        let c = figdir.join(format!("curves-{}.csv", slug(&task.name)));
+        std::fs::write(&c, &data).with_context(|| format!("writing {}", c.display()))?;
+        let _ = writeln!(md, "Curve data (Figures 3 and 4): [curves-{0}.csv](figures/curves-{0}.csv)\n", slug(&task.name));
         let std_chart = LineChart {
             title: format!("Figure 4: {}, std across seeds of the ranked actor's {what}", task.name),
             x_label,
