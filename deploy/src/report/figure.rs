@@ -88,8 +88,9 @@ pub fn nice_range(lo: f64, hi: f64, target: usize) -> (f64, f64, f64) {
     };
     let step = nice_step(hi - lo, target);
     (
-        (lo / step - 1e-9).floor() * step,
-        (hi / step + 1e-9).ceil() * step,
+        // The tolerance snaps a value a rounding error off a multiple onto it, not past it.
+        (lo / step + 1e-9).floor() * step,
+        (hi / step - 1e-9).ceil() * step,
         step,
     )
 }
