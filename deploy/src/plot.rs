@@ -119,7 +119,12 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric) -> Result<Pat
                 .collect(),
         );
         LineChart {
-            title: format!("{} runs of {}: {} of the ranked actor", runs.len(), loaded[0].env, metric.label()),
+            title: format!(
+                "{} runs of {}: {} of the ranked actor",
+                runs.len(),
+                loaded[0].env,
+                metric.label()
+            ),
             x_label: "env steps (all actors together)".into(),
             y_label: y_label.into(),
             series: vec![s],
@@ -194,11 +199,25 @@ mod aligned {
             "epoch,env_steps,best,eval_return_0,eval_return_1\n1,500,0,-400,-900\n2,1000,0,-300,-900\n3,1500,1,-900,-200\n4,2000,1,-900,-100\n", None);
         fake_run(&d.join("b"), &config("pendulum", 2, 2),
             "epoch,env_steps,best,eval_return_0,eval_return_1\n1,1000,1,-900,-500\n2,2000,1,-900,-100\n", None);
-        fake_run(&d.join("c"), &config("hopper", 3, 2),
-            "epoch,env_steps,best,eval_return_0,eval_return_1\n1,1000,1,-900,-500\n", None);
-        let e = run(&[d.join("a"), d.join("c")], None, Metric::Return).unwrap_err().to_string();
-        assert!(e.contains("different envs") && e.contains("a (pendulum)") && e.contains("c (hopper)"), "{e}");
-        let out = run(&[d.join("a"), d.join("b")], Some(d.join("x.svg")), Metric::Return).unwrap();
+        fake_run(
+            &d.join("c"),
+            &config("hopper", 3, 2),
+            "epoch,env_steps,best,eval_return_0,eval_return_1\n1,1000,1,-900,-500\n",
+            None,
+        );
+        let e = run(&[d.join("a"), d.join("c")], None, Metric::Return)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("different envs") && e.contains("a (pendulum)") && e.contains("c (hopper)"),
+            "{e}"
+        );
+        let out = run(
+            &[d.join("a"), d.join("b")],
+            Some(d.join("x.svg")),
+            Metric::Return,
+        )
+        .unwrap();
         let svg = std::fs::read_to_string(out).unwrap();
         // Common range [1000, 2000] on a's 500-step grid: 1000, 1500, 2000 (b interpolated to
         // -300 at 1500); pairing by CSV row would have given two points, a's 500 with b's 1000.

@@ -27,7 +27,13 @@ fn ranked_at(run: &Path, x: f64) -> f64 {
     let y: Vec<f64> = rows
         .iter()
         .zip(&best)
-        .map(|(r, b)| column(&h, std::slice::from_ref(r), &format!("eval_return_{}", *b as usize))[0])
+        .map(|(r, b)| {
+            column(
+                &h,
+                std::slice::from_ref(r),
+                &format!("eval_return_{}", *b as usize),
+            )[0]
+        })
         .collect();
     let i = steps.iter().rposition(|s| *s <= x).unwrap();
     if steps[i] == x {
@@ -77,41 +83,78 @@ fn report_recomputes_table_2_and_figure_3_from_the_runs() {
     )
     .unwrap();
     let mut c = std::process::Command::new(bin("selkd"));
-    c.args(["experiment", "report"]).arg(&dir).args(["--episodes", "3"]);
+    c.args(["experiment", "report"])
+        .arg(&dir)
+        .args(["--episodes", "3"]);
     let out = run(c);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
     let table = csv_rows(&dir.join("table2.csv"));
     let curves = csv_rows(&dir.join("figures/curves-pendulum.csv"));
-    assert!(md.contains("E = 3 fresh episodes") && md.contains("sample"), "{md}");
+    assert!(
+        md.contains("E = 3 fresh episodes") && md.contains("sample"),
+        "{md}"
+    );
     for (m, _) in methods {
         // Table 2: each seed's mean return over its fresh episodes, then mean ± sample std.
         let scores: Vec<f64> = [1, 2]
             .iter()
             .map(|s| {
                 let f: serde_json::Value = serde_json::from_str(
-                    &std::fs::read_to_string(dir.join(format!("{m}/pendulum/seed-{s}/fresh_eval.json"))).unwrap(),
+                    &std::fs::read_to_string(
+                        dir.join(format!("{m}/pendulum/seed-{s}/fresh_eval.json")),
+                    )
+                    .unwrap(),
                 )
                 .unwrap();
-                let r: Vec<f64> = f["returns"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+                let r: Vec<f64> = f["returns"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|v| v.as_f64().unwrap())
+                    .collect();
                 assert_eq!(r.len(), 3);
                 mean(&r)
             })
             .collect();
         let (sm, ss) = (mean(&scores), sample_std(&scores));
-        let row = table.iter().find(|r| r[0] == "pendulum" && r[1] == m).unwrap();
+        let row = table
+            .iter()
+            .find(|r| r[0] == "pendulum" && r[1] == m)
+            .unwrap();
         assert_eq!(row[3], "2");
         let (tm, ts): (f64, f64) = (row[4].parse().unwrap(), row[5].parse().unwrap());
-        assert!(close(tm, sm) && close(ts, ss), "{m}: table {tm} ± {ts}, recomputed {sm} ± {ss}");
-        assert!(md.contains(&format!("{sm:.1} ± {ss:.1}")), "{m}: {sm:.1} ± {ss:.1} not in\n{md}");
+        assert!(
+            close(tm, sm) && close(ts, ss),
+            "{m}: table {tm} ± {ts}, recomputed {sm} ± {ss}"
+        );
+        assert!(
+            md.contains(&format!("{sm:.1} ± {ss:.1}")),
+            "{m}: {sm:.1} ± {ss:.1} not in\n{md}"
+        );
         // Figure 3 at 1000 env steps (a grid point: every seed covers 500..2000 in 500s).
-        let runs: Vec<_> = [1, 2].iter().map(|s| dir.join(format!("{m}/pendulum/seed-{s}"))).collect();
+        let runs: Vec<_> = [1, 2]
+            .iter()
+            .map(|s| dir.join(format!("{m}/pendulum/seed-{s}")))
+            .collect();
         let at: Vec<f64> = runs.iter().map(|r| ranked_at(r, 1000.0)).collect();
         let point = curves.iter().find(|r| r[0] == m && r[1] == "1000").unwrap();
         let (pm, ps): (f64, f64) = (point[3].parse().unwrap(), point[4].parse().unwrap());
-        assert!(close(pm, mean(&at)) && close(ps, sample_std(&at)), "{m}: curve {pm} ± {ps} vs {at:?}");
+        assert!(
+            close(pm, mean(&at)) && close(ps, sample_std(&at)),
+            "{m}: curve {pm} ± {ps} vs {at:?}"
+        );
     }
-    for f in ["fig3-pendulum", "fig4-pendulum", "fig5-pendulum", "fig6-pendulum"] {
+    for f in [
+        "fig3-pendulum",
+        "fig4-pendulum",
+        "fig5-pendulum",
+        "fig6-pendulum",
+    ] {
         assert!(dir.join(format!("figures/{f}.svg")).exists(), "{f}.svg");
         let png = png::Decoder::new(std::io::BufReader::new(
             std::fs::File::open(dir.join(format!("figures/{f}.png"))).unwrap(),
@@ -124,8 +167,13 @@ fn report_recomputes_table_2_and_figure_3_from_the_runs() {
     let cache = dir.join("k1/pendulum/seed-1/fresh_eval.json");
     let before = std::fs::metadata(&cache).unwrap().modified().unwrap();
     let mut c = std::process::Command::new(bin("selkd"));
-    c.args(["experiment", "report"]).arg(&dir).args(["--episodes", "3"]);
+    c.args(["experiment", "report"])
+        .arg(&dir)
+        .args(["--episodes", "3"]);
     assert!(run(c).status.success());
-    assert_eq!(std::fs::metadata(&cache).unwrap().modified().unwrap(), before);
+    assert_eq!(
+        std::fs::metadata(&cache).unwrap().modified().unwrap(),
+        before
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -39,7 +39,9 @@ impl Aligned {
 
     /// Mean over seeds at each grid point.
     pub fn mean(&self) -> Vec<f64> {
-        (0..self.grid.len()).map(|g| mean(&self.column(g))).collect()
+        (0..self.grid.len())
+            .map(|g| mean(&self.column(g)))
+            .collect()
     }
 
     /// Sample standard deviation over seeds at each grid point.
@@ -73,7 +75,11 @@ pub fn common_grid(curves: &[&[f64]]) -> Result<Vec<f64>> {
     if lo > hi {
         bail!("the runs cover no common range of env steps (one ends at {hi}, another starts at {lo})");
     }
-    let Some(step) = curves.iter().filter_map(|c| epoch_length(c)).min_by(f64::total_cmp) else {
+    let Some(step) = curves
+        .iter()
+        .filter_map(|c| epoch_length(c))
+        .min_by(f64::total_cmp)
+    else {
         return Ok(vec![lo]);
     };
     // A small tolerance: env steps are integers, but lo / step need not divide exactly in f64.
@@ -142,7 +148,10 @@ mod tests {
     #[test]
     fn curves_of_different_epoch_lengths_meet_on_a_common_grid_interpolated_by_hand() {
         // Seed A evaluates every 500 env steps, seed B every 600 from 600 to 1800.
-        let (ax, ay) = (vec![500.0, 1000.0, 1500.0, 2000.0], vec![0.0, 10.0, 20.0, 30.0]);
+        let (ax, ay) = (
+            vec![500.0, 1000.0, 1500.0, 2000.0],
+            vec![0.0, 10.0, 20.0, 30.0],
+        );
         let (bx, by) = (vec![600.0, 1200.0, 1800.0], vec![6.0, 12.0, 24.0]);
         let a = Aligned::new(&[(&ax, &ay), (&bx, &by)]).unwrap();
         // Shortest epoch 500; both cover [600, 1800]: the multiples 1000 and 1500.
@@ -159,7 +168,11 @@ mod tests {
 
     #[test]
     fn interpolation_is_nan_outside_the_curve_and_exact_on_its_points() {
-        let v = interpolate(&[100.0, 200.0], &[1.0, f64::NAN], &[50.0, 100.0, 150.0, 250.0]);
+        let v = interpolate(
+            &[100.0, 200.0],
+            &[1.0, f64::NAN],
+            &[50.0, 100.0, 150.0, 250.0],
+        );
         assert!(v[0].is_nan() && v[2].is_nan() && v[3].is_nan());
         assert_eq!(v[1], 1.0);
     }
@@ -171,7 +184,10 @@ mod tests {
         assert!(sample_std(&[5.0]).is_nan());
         // Budget 2000: the points at 1000, 1500 and 2000 are the second half.
         let grid = [500.0, 1000.0, 1500.0, 2000.0];
-        assert_eq!(second_half_mean(&grid, &[100.0, 3.0, 4.0, 8.0], 2000.0), 5.0);
+        assert_eq!(
+            second_half_mean(&grid, &[100.0, 3.0, 4.0, 8.0], 2000.0),
+            5.0
+        );
     }
 
     #[test]

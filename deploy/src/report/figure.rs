@@ -258,7 +258,11 @@ impl LineChart {
                 .filter(|p| p.1.is_finite())
                 .map(|p| format!("{:.1},{:.1}", sx(p.0), sy(p.1)))
                 .collect();
-            let dash = if s.dashed { r#" stroke-dasharray="8 5""# } else { "" };
+            let dash = if s.dashed {
+                r#" stroke-dasharray="8 5""#
+            } else {
+                ""
+            };
             let _ = writeln!(
                 svg,
                 r#"<polyline points="{}" fill="none" stroke="{}" stroke-width="{}"{dash}/>"#,
@@ -269,13 +273,21 @@ impl LineChart {
             if p.len() == 1 {
                 // A single point draws no line: mark it.
                 let (x, y) = p[0].split_once(',').unwrap();
-                let _ = writeln!(svg, r#"<circle cx="{x}" cy="{y}" r="4" fill="{}"/>"#, s.colour);
+                let _ = writeln!(
+                    svg,
+                    r#"<circle cx="{x}" cy="{y}" r="4" fill="{}"/>"#,
+                    s.colour
+                );
             }
         }
         let _ = writeln!(svg, "</g>");
         for (i, s) in self.series.iter().enumerate() {
             let y = legend_top + ROW * i as f64;
-            let dash = if s.dashed { r#" stroke-dasharray="8 5""# } else { "" };
+            let dash = if s.dashed {
+                r#" stroke-dasharray="8 5""#
+            } else {
+                ""
+            };
             let _ = writeln!(
                 svg,
                 r#"<line x1="{LEFT}" x2="{}" y1="{y}" y2="{y}" stroke="{}" stroke-width="{}"{dash}/><text x="{}" y="{}">{}</text>"#,
@@ -315,8 +327,18 @@ impl BarChart {
                     sy(0.0) - sy(*v)
                 );
             }
-            let text = if v.is_finite() { format!("{v:.3}") } else { "n/a".into() };
-            let ty = if v.is_finite() { sy(*v) - 6.0 } else { sy(0.0) - 6.0 };
+            // About three significant digits: 152.7, 3.14, 0.123.
+            let text = match v.abs() {
+                a if !a.is_finite() => "n/a".to_string(),
+                a if a >= 100.0 => format!("{v:.1}"),
+                a if a >= 1.0 => format!("{v:.2}"),
+                _ => format!("{v:.3}"),
+            };
+            let ty = if v.is_finite() {
+                sy(*v) - 6.0
+            } else {
+                sy(0.0) - 6.0
+            };
             let _ = writeln!(
                 svg,
                 r#"<text x="{:.1}" y="{ty:.1}" text-anchor="middle">{text}</text>"#,
@@ -347,9 +369,13 @@ pub fn png(svg: &str) -> Result<Vec<u8>> {
     opt.font_family = "DejaVu Sans".into();
     let tree = resvg::usvg::Tree::from_str(svg, &opt).context("parsing the SVG for the PNG")?;
     let size = tree.size().to_int_size();
-    let mut pixmap = resvg::tiny_skia::Pixmap::new(size.width(), size.height())
-        .context("allocating the PNG")?;
-    resvg::render(&tree, resvg::tiny_skia::Transform::identity(), &mut pixmap.as_mut());
+    let mut pixmap =
+        resvg::tiny_skia::Pixmap::new(size.width(), size.height()).context("allocating the PNG")?;
+    resvg::render(
+        &tree,
+        resvg::tiny_skia::Transform::identity(),
+        &mut pixmap.as_mut(),
+    );
     pixmap.encode_png().context("encoding the PNG")
 }
 

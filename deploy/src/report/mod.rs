@@ -80,11 +80,23 @@ fn figure_groups(dir: &Path) -> Result<Vec<FigureGroup>> {
             let methods = f
                 .get("methods")
                 .and_then(|m| m.as_array())
-                .with_context(|| format!("{}: [[figure]] {} has no methods = [..]", path.display(), i + 1))?
+                .with_context(|| {
+                    format!(
+                        "{}: [[figure]] {} has no methods = [..]",
+                        path.display(),
+                        i + 1
+                    )
+                })?
                 .iter()
                 .map(|m| m.as_str().map(str::to_string))
                 .collect::<Option<Vec<_>>>()
-                .with_context(|| format!("{}: [[figure]] {}: methods must be strings", path.display(), i + 1))?;
+                .with_context(|| {
+                    format!(
+                        "{}: [[figure]] {}: methods must be strings",
+                        path.display(),
+                        i + 1
+                    )
+                })?;
             let title = f
                 .get("title")
                 .and_then(|t| t.as_str())
@@ -96,7 +108,12 @@ fn figure_groups(dir: &Path) -> Result<Vec<FigureGroup>> {
 
 /// Refuses a task whose runs (across methods) differ in env or env options.
 fn check_same_task(task: &str, runs: &[&Run]) -> Result<()> {
-    let key = |r: &Run| (r.env.clone(), r.config.get("env_options").map(|v| v.to_string()));
+    let key = |r: &Run| {
+        (
+            r.env.clone(),
+            r.config.get("env_options").map(|v| v.to_string()),
+        )
+    };
     if runs.iter().any(|r| key(r) != key(runs[0])) {
         let list: Vec<String> = runs
             .iter()
@@ -114,7 +131,13 @@ fn check_same_task(task: &str, runs: &[&Run]) -> Result<()> {
 
 fn slug(s: &str) -> String {
     s.chars()
-        .map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_lowercase() } else { '-' })
+        .map(|c| {
+            if c.is_ascii_alphanumeric() {
+                c.to_ascii_lowercase()
+            } else {
+                '-'
+            }
+        })
         .collect()
 }
 
@@ -148,7 +171,11 @@ fn task_figures(
     stem: &str,
     figdir: &Path,
 ) -> Result<String> {
-    let metric = if task.rate { Metric::Success } else { Metric::Return };
+    let metric = if task.rate {
+        Metric::Success
+    } else {
+        Metric::Return
+    };
     let groups: Vec<&Group> = task
         .groups
         .iter()
@@ -156,7 +183,10 @@ fn task_figures(
         .filter(|g| !g.finished.is_empty())
         .collect();
     if groups.is_empty() {
-        return Ok(format!("{label}, `{}`: no finished run of these methods.\n\n", task.name));
+        return Ok(format!(
+            "{label}, `{}`: no finished run of these methods.\n\n",
+            task.name
+        ));
     }
     let mut lines = Vec::new();
     // Figure 3's and 4's numbers, for whoever wants to check or redraw them.
@@ -171,7 +201,11 @@ fn task_figures(
         for (i, x) in ranked.grid.iter().enumerate() {
             // The actors' mean has its own grid only if a run lacks some actor's column; both
             // come from the same steps, so they match.
-            let a = mean.grid.iter().position(|g| g == x).map_or(f64::NAN, |j| am[j]);
+            let a = mean
+                .grid
+                .iter()
+                .position(|g| g == x)
+                .map_or(f64::NAN, |j| am[j]);
             let _ = writeln!(data, "{},{x},{n},{},{},{a}", g.method, m[i], sd[i]);
         }
         lines.push(Series {
@@ -201,7 +235,12 @@ fn task_figures(
         }
         stds.push(Series::line(
             format!("{} ({n} seeds)", g.method),
-            ranked.grid.iter().copied().zip(sd.iter().copied()).collect(),
+            ranked
+                .grid
+                .iter()
+                .copied()
+                .zip(sd.iter().copied())
+                .collect(),
             colour(g.index),
         ));
         bars.push((
@@ -215,20 +254,34 @@ fn task_figures(
     let x_label = "env steps (all actors together)".to_string();
     let mut md = String::new();
     let curve = LineChart {
-        title: format!("{label}: {}, ranked actor's in-run evaluation {what}", task.name),
+        title: format!(
+            "{label}: {}, ranked actor's in-run evaluation {what}",
+            task.name
+        ),
         x_label: x_label.clone(),
         y_label: format!("ranked actor's in-run evaluation {what}"),
         series: lines,
         y_range,
     };
     figure::write(&curve.svg(), &figdir.join(stem))?;
-    let _ = writeln!(md, "![{label}: {}](figures/{stem}.png) ([SVG](figures/{stem}.svg))\n", task.name);
+    let _ = writeln!(
+        md,
+        "![{label}: {}](figures/{stem}.png) ([SVG](figures/{stem}.svg))\n",
+        task.name
+    );
     if methods.is_none() {
         let c = figdir.join(format!("curves-{}.csv", slug(&task.name)));
         std::fs::write(&c, &data).with_context(|| format!("writing {}", c.display()))?;
-        let _ = writeln!(md, "Curve data (Figures 3 and 4): [curves-{0}.csv](figures/curves-{0}.csv)\n", slug(&task.name));
+        let _ = writeln!(
+            md,
+            "Curve data (Figures 3 and 4): [curves-{0}.csv](figures/curves-{0}.csv)\n",
+            slug(&task.name)
+        );
         let std_chart = LineChart {
-            title: format!("Figure 4: {}, std across seeds of the ranked actor's {what}", task.name),
+            title: format!(
+                "Figure 4: {}, std across seeds of the ranked actor's {what}",
+                task.name
+            ),
             x_label,
             y_label: format!("sample std across seeds ({what})"),
             series: stds,
@@ -237,32 +290,59 @@ fn task_figures(
         let s4 = format!("fig4-{}", slug(&task.name));
         figure::write(&std_chart.svg(), &figdir.join(&s4))?;
         let bar = BarChart {
-            title: format!("Figure 5: {}, mean std across seeds over the second half of training", task.name),
+            title: format!(
+                "Figure 5: {}, mean std across seeds over the second half of training",
+                task.name
+            ),
             y_label: format!("mean sample std ({what})"),
             bars,
         };
         let s5 = format!("fig5-{}", slug(&task.name));
         figure::write(&bar.svg(), &figdir.join(&s5))?;
-        let _ = writeln!(md, "Figure 4, `{}`: ![Figure 4](figures/{s4}.png) ([SVG](figures/{s4}.svg))\n", task.name);
-        let _ = writeln!(md, "Figure 5, `{}`: ![Figure 5](figures/{s5}.png) ([SVG](figures/{s5}.svg))\n", task.name);
+        let _ = writeln!(
+            md,
+            "Figure 4, `{}`: ![Figure 4](figures/{s4}.png) ([SVG](figures/{s4}.svg))\n",
+            task.name
+        );
+        let _ = writeln!(
+            md,
+            "Figure 5, `{}`: ![Figure 5](figures/{s5}.png) ([SVG](figures/{s5}.svg))\n",
+            task.name
+        );
     }
     Ok(md)
 }
 
-fn rows(task: &Task, fresh: &BTreeMap<PathBuf, fresh::FreshEval>, methods: Option<&[String]>) -> Vec<Row> {
-    let metric = if task.rate { Metric::Success } else { Metric::Return };
+fn rows(
+    task: &Task,
+    fresh: &BTreeMap<PathBuf, fresh::FreshEval>,
+    methods: Option<&[String]>,
+) -> Vec<Row> {
+    let metric = if task.rate {
+        Metric::Success
+    } else {
+        Metric::Return
+    };
     task.groups
         .iter()
         .filter(|g| methods.is_none_or(|m| m.contains(&g.method)))
         .map(|g| Row {
             method: g.method.clone(),
-            scores: g.finished.iter().map(|r| fresh[&r.dir].score(task.rate)).collect(),
+            scores: g
+                .finished
+                .iter()
+                .map(|r| fresh[&r.dir].score(task.rate))
+                .collect(),
             in_run: g
                 .finished
                 .iter()
                 .map(|r| r.metrics.ranked(metric).last().copied().unwrap_or(f64::NAN))
                 .collect(),
-            short: g.short.iter().map(|r| (r.seed, r.env_steps(), r.budget)).collect(),
+            short: g
+                .short
+                .iter()
+                .map(|r| (r.seed, r.env_steps(), r.budget))
+                .collect(),
         })
         .collect()
 }
@@ -275,7 +355,10 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
     }
     let all = runs::discover(dir)?;
     if all.is_empty() {
-        bail!("no run directories under {} (expected {0}/<method>/<task>/seed-<s>/config.toml)", dir.display());
+        bail!(
+            "no run directories under {} (expected {0}/<method>/<task>/seed-<s>/config.toml)",
+            dir.display()
+        );
     }
     if !all.iter().any(|(_, _, r)| r.finished()) {
         bail!(
@@ -292,7 +375,12 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
     };
     let mut by_task: BTreeMap<String, BTreeMap<String, Vec<&Run>>> = BTreeMap::new();
     for (m, t, r) in &all {
-        by_task.entry(t.clone()).or_default().entry(m.clone()).or_default().push(r);
+        by_task
+            .entry(t.clone())
+            .or_default()
+            .entry(m.clone())
+            .or_default()
+            .push(r);
     }
     let mut tasks = Vec::new();
     for (name, by_method) in &by_task {
@@ -319,11 +407,8 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
         .flat_map(|t| t.groups.iter().flat_map(|g| g.finished.iter().copied()))
         .collect();
     let evals = fresh::fresh_evals(&finished, args.episodes)?;
-    let fresh: BTreeMap<PathBuf, fresh::FreshEval> = finished
-        .iter()
-        .map(|r| r.dir.clone())
-        .zip(evals)
-        .collect();
+    let fresh: BTreeMap<PathBuf, fresh::FreshEval> =
+        finished.iter().map(|r| r.dir.clone()).zip(evals).collect();
 
     let figdir = dir.join("figures");
     std::fs::create_dir_all(&figdir).with_context(|| format!("creating {}", figdir.display()))?;
@@ -333,7 +418,11 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
         .iter()
         .flat_map(|t| {
             t.groups.iter().map(move |g| {
-                let b = g.finished.first().or(g.short.first()).map_or(0, |r| r.budget);
+                let b = g
+                    .finished
+                    .first()
+                    .or(g.short.first())
+                    .map_or(0, |r| r.budget);
                 format!("{} on `{}`: {b}", g.method, t.name)
             })
         })
@@ -342,12 +431,25 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
         .iter()
         .flat_map(|t| {
             t.groups.iter().map(move |g| {
-                format!("{} on `{}`: {} finished{}", g.method, t.name, g.finished.len(),
-                    if g.short.is_empty() { String::new() } else { format!(", {} short", g.short.len()) })
+                format!(
+                    "{} on `{}`: {} finished{}",
+                    g.method,
+                    t.name,
+                    g.finished.len(),
+                    if g.short.is_empty() {
+                        String::new()
+                    } else {
+                        format!(", {} short", g.short.len())
+                    }
+                )
             })
         })
         .collect();
-    let _ = writeln!(md, "- **Env-step budget** (`run.total_env_steps`, transitions of all actors together): {}.", budgets.join("; "));
+    let _ = writeln!(
+        md,
+        "- **Env-step budget** (`run.total_env_steps`, transitions of all actors together): {}.",
+        budgets.join("; ")
+    );
     let _ = writeln!(md, "- **Seeds**: {}.", seeds.join("; "));
     let _ = writeln!(md, "- **Score** (Table 2): the actor that the final checkpoint's ranking picks (the actor SELKD executes), re-evaluated with deterministic actions on **E = {} fresh episodes** (`fresh_seed(0..{})`: the same episodes for every method and seed, none played during training, so the pick's luck does not inflate the score), on the run's env and `[env_options]`. The score is the mean undiscounted return, or the success rate for tasks that report success. Each run's episodes are in `RUN/fresh_eval.json`.", args.episodes, args.episodes);
     let _ = writeln!(md, "- **mean ± std** is over seeds; std is the **sample** standard deviation (divisor n − 1; n/a for one seed). Only finished runs (final checkpoint at the budget) are averaged; a † marks a method with runs that stopped short (footnotes give their env steps).");
@@ -361,8 +463,12 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
         csv_tasks.push((t.name.clone(), t.rate, r));
     }
     let csv_path = dir.join("table2.csv");
-    std::fs::write(&csv_path, table::csv(&csv_tasks)).with_context(|| format!("writing {}", csv_path.display()))?;
-    let _ = writeln!(md, "The same numbers at full precision: [table2.csv](table2.csv).\n");
+    std::fs::write(&csv_path, table::csv(&csv_tasks))
+        .with_context(|| format!("writing {}", csv_path.display()))?;
+    let _ = writeln!(
+        md,
+        "The same numbers at full precision: [table2.csv](table2.csv).\n"
+    );
     let _ = writeln!(md, "## Figures 3–5: learning curves and stability\n");
     for t in &tasks {
         let _ = writeln!(md, "### `{}`\n", t.name);
@@ -374,11 +480,25 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
         let _ = writeln!(md, "## Figure {n}: {}\n", f.title);
         let missing: Vec<&String> = f.methods.iter().filter(|m| !methods.contains(m)).collect();
         if !missing.is_empty() {
-            let _ = writeln!(md, "No runs of: {}.\n", missing.iter().map(|m| format!("`{m}`")).collect::<Vec<_>>().join(", "));
+            let _ = writeln!(
+                md,
+                "No runs of: {}.\n",
+                missing
+                    .iter()
+                    .map(|m| format!("`{m}`"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
         }
         for t in &tasks {
             let stem = format!("fig{n}-{}", slug(&t.name));
-            md.push_str(&task_figures(t, Some(&f.methods), &format!("Figure {n}"), &stem, &figdir)?);
+            md.push_str(&task_figures(
+                t,
+                Some(&f.methods),
+                &format!("Figure {n}"),
+                &stem,
+                &figdir,
+            )?);
             let r = rows(t, &fresh, Some(&f.methods));
             if !r.is_empty() {
                 md.push_str(&table::markdown(&t.name, &r, t.rate, args.episodes));
@@ -400,8 +520,17 @@ mod tests {
     fn a_directory_without_a_finished_run_is_one_line_error() {
         let d = std::env::temp_dir().join(format!("selkd-report-none-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&d);
-        fake_run(&d.join("m/pendulum/seed-1"), &config("pendulum", 1, 2), METRICS, Some(1000));
-        let e = run(&ReportArgs { dir: d.clone(), episodes: 2 }).unwrap_err();
+        fake_run(
+            &d.join("m/pendulum/seed-1"),
+            &config("pendulum", 1, 2),
+            METRICS,
+            Some(1000),
+        );
+        let e = run(&ReportArgs {
+            dir: d.clone(),
+            episodes: 2,
+        })
+        .unwrap_err();
         let e = format!("{e:#}");
         assert!(e.contains("no finished run") && !e.contains('\n'), "{e}");
         let _ = std::fs::remove_dir_all(&d);
@@ -411,10 +540,30 @@ mod tests {
     fn a_method_whose_seeds_differ_in_config_is_refused() {
         let d = std::env::temp_dir().join(format!("selkd-report-cfg-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&d);
-        fake_run(&d.join("m/pendulum/seed-1"), &config("pendulum", 1, 2), METRICS, Some(2000));
-        fake_run(&d.join("m/pendulum/seed-2"), &config("pendulum", 2, 3), METRICS, Some(2000));
-        let e = format!("{:#}", run(&ReportArgs { dir: d.clone(), episodes: 2 }).unwrap_err());
-        assert!(e.contains("different configs") && e.contains("seed-1") && e.contains("seed-2"), "{e}");
+        fake_run(
+            &d.join("m/pendulum/seed-1"),
+            &config("pendulum", 1, 2),
+            METRICS,
+            Some(2000),
+        );
+        fake_run(
+            &d.join("m/pendulum/seed-2"),
+            &config("pendulum", 2, 3),
+            METRICS,
+            Some(2000),
+        );
+        let e = format!(
+            "{:#}",
+            run(&ReportArgs {
+                dir: d.clone(),
+                episodes: 2
+            })
+            .unwrap_err()
+        );
+        assert!(
+            e.contains("different configs") && e.contains("seed-1") && e.contains("seed-2"),
+            "{e}"
+        );
         let _ = std::fs::remove_dir_all(&d);
     }
 }

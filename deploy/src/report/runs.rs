@@ -58,9 +58,7 @@ impl Metrics {
         let col = |name: &str| header.iter().position(|h| *h == name);
         let prefixed = |prefix: &str| -> Vec<usize> {
             // eval_return_0, eval_return_1, ... in actor order.
-            (0..)
-                .map_while(|i| col(&format!("{prefix}{i}")))
-                .collect()
+            (0..).map_while(|i| col(&format!("{prefix}{i}"))).collect()
         };
         let steps_col = col("env_steps").context("no env_steps column")?;
         let best_col = col("best");
@@ -84,7 +82,10 @@ impl Metrics {
                 .collect();
             if v.len() < header.len() {
                 // A row cut short (the learner killed mid-write): the epochs before it stand.
-                eprintln!("selkd: warning: metrics.csv row {} is incomplete; ignored", n + 2);
+                eprintln!(
+                    "selkd: warning: metrics.csv row {} is incomplete; ignored",
+                    n + 2
+                );
                 continue;
             }
             m.steps.push(v[steps_col]);
@@ -165,7 +166,13 @@ impl Run {
     pub fn load(dir: &Path) -> Result<Run> {
         let cfg_path = dir.join("config.toml");
         let config: toml::Table = std::fs::read_to_string(&cfg_path)
-            .with_context(|| format!("reading {} (is {} a run directory?)", cfg_path.display(), dir.display()))?
+            .with_context(|| {
+                format!(
+                    "reading {} (is {} a run directory?)",
+                    cfg_path.display(),
+                    dir.display()
+                )
+            })?
             .parse()
             .with_context(|| format!("reading {}", cfg_path.display()))?;
         let env = get(&config, "run", "env")
@@ -176,7 +183,9 @@ impl Run {
             .and_then(|v| v.as_integer())
             .with_context(|| format!("{} has no run.total_env_steps", cfg_path.display()))?
             as u64;
-        let seed = get(&config, "run", "seed").and_then(|v| v.as_integer()).unwrap_or(0) as u64;
+        let seed = get(&config, "run", "seed")
+            .and_then(|v| v.as_integer())
+            .unwrap_or(0) as u64;
         let state = dir.join("checkpoints/final/state.json");
         let reached = if state.exists() {
             let v: serde_json::Value = serde_json::from_str(
@@ -341,7 +350,8 @@ pub(crate) mod tests {
         format!("[run]\nenv = \"{env}\"\nseed = {seed}\ntotal_env_steps = 2000\nthreads = {seed}\n\n[algo]\nactors = {actors}\n")
     }
 
-    pub const METRICS: &str = "epoch,env_steps,best,eval_return_0,eval_return_1,eval_success_0,eval_success_1\n\
+    pub const METRICS: &str =
+        "epoch,env_steps,best,eval_return_0,eval_return_1,eval_success_0,eval_success_1\n\
         1,1000,1,-50.0,-40.0,NaN,NaN\n\
         2,2000,0,-20.0,-30.0,NaN,NaN\n";
 
@@ -368,10 +378,16 @@ pub(crate) mod tests {
         fake_run(&d.join("d"), &config("pendulum", 4, 2), METRICS, Some(1500));
         let [a, b, c, dd] = ["a", "b", "c", "d"].map(|n| Run::load(&d.join(n)).unwrap());
         let e = check_same_config(&[&a, &b]).unwrap_err().to_string();
-        assert!(e.contains("different envs") && e.contains("(pendulum)") && e.contains("(hopper)"), "{e}");
+        assert!(
+            e.contains("different envs") && e.contains("(pendulum)") && e.contains("(hopper)"),
+            "{e}"
+        );
         assert!(!e.contains('\n'));
         let e = check_same_config(&[&a, &c]).unwrap_err().to_string();
-        assert!(e.contains("algo.actors = 2") && e.contains("algo.actors = 3"), "{e}");
+        assert!(
+            e.contains("algo.actors = 2") && e.contains("algo.actors = 3"),
+            "{e}"
+        );
         // Seeds and threads may differ.
         check_same_config(&[&a, &dd]).unwrap();
         assert!(a.finished() && !dd.finished());

@@ -46,11 +46,7 @@ pub fn markdown(task: &str, rows: &[Row], rate: bool, episodes: usize) -> String
         .map(|r| r.score().0)
         .filter(|v| v.is_finite())
         .fold(f64::NAN, f64::max);
-    let what = if rate {
-        "success rate"
-    } else {
-        "mean return"
-    };
+    let what = if rate { "success rate" } else { "mean return" };
     let mut s = String::new();
     let _ = writeln!(s, "#### `{task}`\n");
     let _ = writeln!(
@@ -136,10 +132,19 @@ mod tests {
         ];
         let md = markdown("pendulum", &rows, false, 20);
         // Sample std of {-100, -200}: 70.7.
-        assert!(md.contains("| a | 2 | -150.0 ± 70.7 | -100.0 ± 14.1 |"), "{md}");
+        assert!(
+            md.contains("| a | 2 | -150.0 ± 70.7 | -100.0 ± 14.1 |"),
+            "{md}"
+        );
         assert!(md.contains("| b | 1 † | **-50.0 ± n/a** |"), "{md}");
-        assert!(md.contains("† b: seed-2 stopped at 1500 of 2000 env steps"), "{md}");
+        assert!(
+            md.contains("† b: seed-2 stopped at 1500 of 2000 env steps"),
+            "{md}"
+        );
         let csv = csv(&[("pendulum".into(), false, rows)]);
-        assert!(csv.contains("pendulum,b,return,1,-50,NaN,-40,NaN,seed-2@1500/2000"), "{csv}");
+        assert!(
+            csv.contains("pendulum,b,return,1,-50,NaN,-40,NaN,seed-2@1500/2000"),
+            "{csv}"
+        );
     }
 }
