@@ -83,6 +83,7 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric) -> Result<Pat
             y_label: y_label.into(),
             series,
             y_range,
+            from_zero: false,
         }
     } else {
         let loaded = runs
@@ -129,6 +130,7 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric) -> Result<Pat
             y_label: y_label.into(),
             series: vec![s],
             y_range,
+            from_zero: false,
         }
     };
     std::fs::write(&out, chart.svg()).with_context(|| format!("writing {}", out.display()))?;

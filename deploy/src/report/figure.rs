@@ -52,6 +52,8 @@ pub struct LineChart {
     pub series: Vec<Series>,
     /// A fixed y range (rates: `(0, 1)`); otherwise from the data, widened to round ticks.
     pub y_range: Option<(f64, f64)>,
+    /// The y axis starts at 0 (a spread, which cannot be negative).
+    pub from_zero: bool,
 }
 
 pub struct BarChart {
@@ -190,6 +192,7 @@ impl LineChart {
         let (x0, x1, xstep) = nice_range(0.0, xmax.max(1.0), 8);
         let (y0, y1, ystep) = match self.y_range {
             Some((a, b)) => (a, b, nice_step(b - a, 5)),
+            None if self.from_zero => nice_range(0.0, ymax.max(0.0), 6),
             None => nice_range(ymin, ymax, 6),
         };
         let sx = |x: f64| LEFT + (x - x0) / (x1 - x0) * (W - LEFT - RIGHT);
@@ -411,6 +414,7 @@ mod tests {
             y_label: "return".into(),
             series: vec![Series::line("a", vec![(0.0, 1.0), (10.0, 2.0)], colour(0))],
             y_range: None,
+            from_zero: false,
         };
         let png = png(&chart.svg()).unwrap();
         assert_eq!(&png[1..4], b"PNG");

@@ -197,6 +197,11 @@ fn task_figures(
         let (ranked, mean) = curves(&g.finished, metric)?;
         let (m, sd) = (ranked.mean(), ranked.std());
         let n = g.finished.len();
+        let seeds = if n == 1 {
+            "1 seed, no std".to_string()
+        } else {
+            format!("{n} seeds")
+        };
         let am = mean.mean();
         for (i, x) in ranked.grid.iter().enumerate() {
             // The actors' mean has its own grid only if a run lacks some actor's column; both
@@ -209,7 +214,11 @@ fn task_figures(
             let _ = writeln!(data, "{},{x},{n},{},{},{a}", g.method, m[i], sd[i]);
         }
         lines.push(Series {
-            label: format!("{} (mean of {n} seeds, band ± ½ std)", g.method),
+            label: if n == 1 {
+                format!("{} (1 seed)", g.method)
+            } else {
+                format!("{} (mean of {n} seeds, band ± ½ std)", g.method)
+            },
             points: ranked.grid.iter().copied().zip(m.iter().copied()).collect(),
             band: Some(
                 ranked
@@ -234,7 +243,7 @@ fn task_figures(
             });
         }
         stds.push(Series::line(
-            format!("{} ({n} seeds)", g.method),
+            format!("{} ({seeds})", g.method),
             ranked
                 .grid
                 .iter()
@@ -244,7 +253,7 @@ fn task_figures(
             colour(g.index),
         ));
         bars.push((
-            format!("{} ({n} seeds)", g.method),
+            format!("{} ({seeds})", g.method),
             second_half_mean(&ranked.grid, &sd, g.finished[0].budget as f64),
             colour(g.index),
         ));
@@ -262,6 +271,7 @@ fn task_figures(
         y_label: format!("ranked actor's in-run evaluation {what}"),
         series: lines,
         y_range,
+        from_zero: false,
     };
     figure::write(&curve.svg(), &figdir.join(stem))?;
     let _ = writeln!(
@@ -286,6 +296,7 @@ fn task_figures(
             y_label: format!("sample std across seeds ({what})"),
             series: stds,
             y_range: None,
+            from_zero: true,
         };
         let s4 = format!("fig4-{}", slug(&task.name));
         figure::write(&std_chart.svg(), &figdir.join(&s4))?;
