@@ -110,3 +110,22 @@ pub fn fresh_evals(runs: &[&Run], episodes: usize) -> Result<Vec<FreshEval>> {
         .map(|o| o.expect("every run evaluated"))
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_score_is_the_success_rate_for_success_tasks_else_the_mean_return() {
+        let f = FreshEval {
+            checkpoint: CHECKPOINT.into(),
+            actor: 0,
+            env: "fpc-assembly".into(),
+            seeds: vec![1, 2, 3],
+            returns: vec![3.0, 6.0, 12.0],
+            successes: vec![Some(true), Some(false), Some(true)],
+        };
+        assert!((f.score(true) - 2.0 / 3.0).abs() < 1e-12);
+        assert_eq!(f.score(false), 7.0);
+    }
+}

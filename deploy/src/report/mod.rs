@@ -577,4 +577,36 @@ mod tests {
         );
         let _ = std::fs::remove_dir_all(&d);
     }
+
+    #[test]
+    fn a_task_whose_methods_ran_different_envs_is_refused() {
+        let d = std::env::temp_dir().join(format!("selkd-report-env-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        fake_run(
+            &d.join("a/task/seed-1"),
+            &config("pendulum", 1, 2),
+            METRICS,
+            Some(2000),
+        );
+        fake_run(
+            &d.join("b/task/seed-1"),
+            &config("hopper", 1, 2),
+            METRICS,
+            Some(2000),
+        );
+        let e = format!(
+            "{:#}",
+            run(&ReportArgs {
+                dir: d.clone(),
+                episodes: 2
+            })
+            .unwrap_err()
+        );
+        assert!(
+            e.contains("different envs") && e.contains("(pendulum") && e.contains("(hopper"),
+            "{e}"
+        );
+        assert!(!e.contains('\n'), "{e}");
+        let _ = std::fs::remove_dir_all(&d);
+    }
 }
