@@ -1,5 +1,6 @@
 //! `selkd`: run SELKD on this host (`selkd train`), measure it (`selkd bench`), plot its
-//! curves (`selkd plot`) and watch a policy act (`selkd render`).
+//! curves (`selkd plot`), report an experiment (`selkd experiment report`: the paper's Table 2
+//! and Figures 3–9) and watch a policy act (`selkd render`).
 //!
 //! `selkd train` starts one `learner` and K `actor-worker` processes (the binaries next to this
 //! one), shows a progress line, writes a run directory, restarts a worker that dies, and stops
@@ -9,6 +10,7 @@ mod bench;
 mod plot;
 mod raycast;
 mod render;
+mod report;
 mod train;
 
 use clap::{Parser, Subcommand};
@@ -43,6 +45,15 @@ enum Command {
     /// Benchmarks (commands, not tests).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Experiments: many runs (methods × tasks × seeds) and their report.
+    #[command(subcommand)]
+    Experiment(ExperimentCommand),
+}
+
+#[derive(Subcommand, Debug)]
+enum ExperimentCommand {
+    /// Table 2 and Figures 3–9 from DIR/<method>/<task>/seed-<s>/ runs: DIR/report.md.
+    Report(report::ReportArgs),
 }
 
 fn main() {
@@ -51,6 +62,10 @@ fn main() {
         Command::Train(args) => train::run(args),
         Command::Bench(b) => bench::run(b).map(|()| 0),
         Command::Render(args) => render::run(args).map(|()| 0),
+        Command::Experiment(ExperimentCommand::Report(args)) => report::run(&args).map(|p| {
+            eprintln!("selkd: wrote {}", p.display());
+            0
+        }),
         Command::Plot { runs, out, metric } => plot::run(&runs, out, metric).map(|p| {
             eprintln!("selkd: wrote {}", p.display());
             0

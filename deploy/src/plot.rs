@@ -1,300 +1,140 @@
-//! `selkd plot RUN_DIR...`: learning curves from `metrics.csv` as an SVG (no plotting library:
-//! the picture is simple enough to write by hand, and an SVG opens in any browser).
+//! `selkd plot RUN_DIR...`: learning curves from `metrics.csv` as an SVG.
 //!
-//! One run: every actor's evaluation return per epoch, the best of them in bold. Several runs
-//! (e.g. seeds): the mean over runs of the best actor's return, with a ±½ standard-deviation band,
-//! as the paper draws its curves. `--metric success` draws the evaluation success rate instead
-//! (tasks with a success criterion, such as the assembly task).
+//! One run: every actor's evaluation return per epoch, and in bold the actor the ranking picked
+//! at each epoch (the `best` column). Several runs (e.g. seeds): the mean over runs of the ranked
+//! actor's return with a ±½ sample-standard-deviation band, as the paper draws its curves. Runs
+//! are lined up on env steps (each interpolated onto one common grid, the same code as
+//! `selkd experiment report`, [`crate::report::align`]), not by CSV row, and runs of different
+//! envs or configs (anything but run.seed, run.threads, run.device) are refused, naming them.
+//! `--metric success` draws the evaluation success rate instead (tasks with a success criterion,
+//! such as the assembly task).
 
+use crate::report::align::Aligned;
+use crate::report::figure::{colour, LineChart, Series};
+use crate::report::runs::{check_same_config, Metrics, Run};
 use anyhow::{bail, Context, Result};
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-/// What the curves show.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Metric {
-    /// Undiscounted evaluation return (`eval_return_i`).
-    Return,
-    /// Evaluation success rate (`eval_success_i`), for tasks that report success.
-    Success,
-}
+pub use crate::report::runs::Metric;
 
-impl Metric {
-    fn column_prefix(self) -> &'static str {
-        match self {
-            Metric::Return => "eval_return_",
-            Metric::Success => "eval_success_",
-        }
-    }
-    fn label(self) -> &'static str {
-        match self {
-            Metric::Return => "evaluation return",
-            Metric::Success => "evaluation success rate",
-        }
-    }
-    fn file_name(self) -> &'static str {
-        match self {
-            Metric::Return => "returns.svg",
-            Metric::Success => "success.svg",
-        }
+fn file_name(metric: Metric) -> &'static str {
+    match metric {
+        Metric::Return => "returns.svg",
+        Metric::Success => "success.svg",
     }
 }
 
-struct Curve {
-    steps: Vec<f64>,
-    /// `[actor][epoch]`
-    actors: Vec<Vec<f64>>,
-}
-
-fn read(run: &Path, metric: Metric) -> Result<Curve> {
-    let path = run.join("metrics.csv");
-    let text = std::fs::read_to_string(&path).with_context(|| {
-        format!(
-            "reading {} (is {} a run directory?)",
-            path.display(),
-            run.display()
-        )
-    })?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines
-        .next()
-        .context("metrics.csv is empty")?
-        .split(',')
-        .collect();
-    let steps_col = header
-        .iter()
-        .position(|h| *h == "env_steps")
-        .context("metrics.csv has no env_steps column")?;
-    let eval_cols: Vec<usize> = header
-        .iter()
-        .enumerate()
-        .filter(|(_, h)| h.starts_with(metric.column_prefix()))
-        .map(|(i, _)| i)
-        .collect();
-    if eval_cols.is_empty() {
-        bail!(
-            "{} has no {}* columns (written by an older selkd?)",
-            path.display(),
-            metric.column_prefix()
-        );
+fn read(run: &Path, metric: Metric) -> Result<Metrics> {
+    let m = Metrics::read(run)?;
+    if m.steps.is_empty() {
+        bail!("{} has no epochs yet", run.join("metrics.csv").display());
     }
-    let mut c = Curve {
-        steps: Vec::new(),
-        actors: vec![Vec::new(); eval_cols.len()],
-    };
-    for l in lines {
-        let v: Vec<f64> = l
-            .split(',')
-            .map(|x| x.parse().unwrap_or(f64::NAN))
-            .collect();
-        c.steps.push(v[steps_col]);
-        for (a, &col) in eval_cols.iter().enumerate() {
-            c.actors[a].push(v[col]);
-        }
-    }
-    if c.steps.is_empty() {
-        bail!("{} has no epochs yet", path.display());
-    }
-    if c.actors.iter().flatten().all(|v| !v.is_finite()) {
+    if m.actors(metric).is_empty() || m.actors(metric).iter().flatten().all(|v| !v.is_finite()) {
         bail!(
             "{} has no {} values (for --metric success, the task must report success)",
-            path.display(),
+            run.join("metrics.csv").display(),
             metric.label()
         );
     }
-    Ok(c)
-}
-
-fn best(c: &Curve) -> Vec<f64> {
-    (0..c.steps.len())
-        .map(|e| {
-            c.actors
-                .iter()
-                .map(|a| a[e])
-                .filter(|v| v.is_finite())
-                .fold(f64::NAN, f64::max)
-        })
-        .collect()
+    Ok(m)
 }
 
 pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric) -> Result<PathBuf> {
     if runs.is_empty() {
         bail!("name at least one run directory");
     }
-    let curves = runs
-        .iter()
-        .map(|r| read(r, metric))
-        .collect::<Result<Vec<_>>>()?;
-    let out = out.unwrap_or_else(|| runs[0].join(metric.file_name()));
-    // Series: (points, stroke width, colour) and an optional band.
-    let palette = [
-        "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
-        "#bcbd22", "#17becf",
-    ];
-    // (points, stroke width, colour, legend label)
-    type Line = (Vec<(f64, f64)>, f64, String, String);
-    let mut lines: Vec<Line> = Vec::new();
-    let mut band: Vec<(f64, f64, f64)> = Vec::new();
-    let title = if curves.len() == 1 {
-        let c = &curves[0];
-        for (a, ys) in c.actors.iter().enumerate() {
-            lines.push((
-                c.steps.iter().copied().zip(ys.iter().copied()).collect(),
-                1.2,
-                palette[a % palette.len()].into(),
-                format!("actor {a}"),
-            ));
-        }
-        lines.push((
-            c.steps.iter().copied().zip(best(c)).collect(),
-            3.0,
-            "#000".into(),
-            "best actor".into(),
-        ));
-        format!("{}: {} per actor", runs[0].display(), metric.label())
-    } else {
-        let n = curves.iter().map(|c| c.steps.len()).min().unwrap();
-        let mut mean_line = Vec::new();
-        for e in 0..n {
-            let vals: Vec<f64> = curves
-                .iter()
-                .map(|c| best(c)[e])
-                .filter(|v| v.is_finite())
-                .collect();
-            let mean = vals.iter().sum::<f64>() / vals.len().max(1) as f64;
-            let sd = (vals.iter().map(|v| (v - mean).powi(2)).sum::<f64>()
-                / vals.len().max(1) as f64)
-                .sqrt();
-            mean_line.push((curves[0].steps[e], mean));
-            band.push((curves[0].steps[e], mean - sd / 2.0, mean + sd / 2.0));
-        }
-        lines.push((
-            mean_line,
-            2.5,
-            palette[0].into(),
-            format!("best actor, mean of {} runs (band ±½ sd)", curves.len()),
-        ));
-        format!(
-            "{} runs: {} of the best actor",
-            curves.len(),
-            metric.label()
-        )
+    let out = out.unwrap_or_else(|| runs[0].join(file_name(metric)));
+    let y_range = (metric == Metric::Success).then_some((0.0, 1.0));
+    let y_label = match metric {
+        Metric::Return => "undiscounted evaluation return",
+        Metric::Success => "evaluation success rate",
     };
-    let pts = lines
-        .iter()
-        .flat_map(|l| l.0.iter().copied())
-        .chain(band.iter().flat_map(|b| [(b.0, b.1), (b.0, b.2)]))
-        .filter(|p| p.1.is_finite());
-    let (mut x0, mut x1, mut y0, mut y1) = (0.0f64, f64::MIN, f64::MAX, f64::MIN);
-    for (x, y) in pts {
-        x1 = x1.max(x);
-        y0 = y0.min(y);
-        y1 = y1.max(y);
-    }
-    if y1 <= y0 {
-        y0 -= 1.0;
-        y1 += 1.0;
-    }
-    let pad = (y1 - y0) * 0.05;
-    (y0, y1) = (y0 - pad, y1 + pad);
-    x0 = x0.min(0.0);
-    let (w, h, l, r, t, b) = (900.0, 540.0, 80.0, 220.0, 40.0, 60.0);
-    let sx = |x: f64| l + (x - x0) / (x1 - x0).max(1e-9) * (w - l - r);
-    let sy = |y: f64| t + (y1 - y) / (y1 - y0) * (h - t - b);
-    let mut svg = String::new();
-    writeln!(
-        svg,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="13">"#
-    )?;
-    writeln!(
-        svg,
-        r#"<rect width="100%" height="100%" fill="white"/><text x="{l}" y="24" font-size="15">{}</text>"#,
-        escape(&title)
-    )?;
-    // Returns span hundreds; rates lie in [0, 1].
-    let prec = if y1 - y0 < 10.0 { 2 } else { 0 };
-    for i in 0..=5 {
-        let yv = y0 + (y1 - y0) * i as f64 / 5.0;
-        let xv = x0 + (x1 - x0) * i as f64 / 5.0;
-        writeln!(
-            svg,
-            r##"<line x1="{l}" x2="{}" y1="{y}" y2="{y}" stroke="#ddd"/><text x="{}" y="{}" text-anchor="end">{yv:.prec$}</text>"##,
-            w - r,
-            l - 6.0,
-            sy(yv) + 4.0,
-            y = sy(yv)
-        )?;
-        writeln!(
-            svg,
-            r#"<text x="{}" y="{}" text-anchor="middle">{xv:.0}</text>"#,
-            sx(xv),
-            h - b + 18.0
-        )?;
-    }
-    writeln!(
-        svg,
-        r#"<text x="{}" y="{}" text-anchor="middle">env steps (all actors together)</text>"#,
-        (l + w - r) / 2.0,
-        h - 14.0
-    )?;
-    writeln!(
-        svg,
-        r#"<text transform="translate(18,{}) rotate(-90)" text-anchor="middle">{}</text>"#,
-        (t + h - b) / 2.0,
-        match metric {
-            Metric::Return => "undiscounted evaluation return",
-            Metric::Success => "evaluation success rate",
+    let chart = if runs.len() == 1 {
+        let m = read(&runs[0], metric)?;
+        let mut series: Vec<Series> = m
+            .actors(metric)
+            .iter()
+            .enumerate()
+            .map(|(a, ys)| {
+                let mut s = Series::line(
+                    format!("actor {a}"),
+                    m.steps.iter().copied().zip(ys.iter().copied()).collect(),
+                    colour(a),
+                );
+                s.width = 1.2;
+                s
+            })
+            .collect();
+        let label = if m.best.is_some() {
+            "ranked actor (the ranking's pick per epoch)"
+        } else {
+            "best actor (highest evaluation per epoch)"
+        };
+        let mut best = Series::line(
+            label,
+            m.steps.iter().copied().zip(m.ranked(metric)).collect(),
+            "#000".into(),
+        );
+        best.width = 3.0;
+        series.push(best);
+        LineChart {
+            title: format!("{}: {} per actor", runs[0].display(), metric.label()),
+            x_label: "env steps (all actors together)".into(),
+            y_label: y_label.into(),
+            series,
+            y_range,
+            from_zero: false,
         }
-    )?;
-    if !band.is_empty() {
-        let upper: Vec<String> = band
+    } else {
+        let loaded = runs
             .iter()
-            .map(|p| format!("{:.1},{:.1}", sx(p.0), sy(p.2)))
-            .collect();
-        let lower: Vec<String> = band
+            .map(|r| {
+                read(r, metric)?;
+                Run::load(r)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let refs: Vec<&Run> = loaded.iter().collect();
+        check_same_config(&refs)?;
+        let ranked: Vec<Vec<f64>> = loaded.iter().map(|r| r.metrics.ranked(metric)).collect();
+        let curves: Vec<(&[f64], &[f64])> = loaded
             .iter()
-            .rev()
-            .map(|p| format!("{:.1},{:.1}", sx(p.0), sy(p.1)))
+            .zip(&ranked)
+            .map(|(r, y)| (&r.metrics.steps[..], &y[..]))
             .collect();
-        writeln!(
-            svg,
-            r#"<polygon points="{} {}" fill="{}" fill-opacity="0.25"/>"#,
-            upper.join(" "),
-            lower.join(" "),
-            palette[0]
-        )?;
-    }
-    for (i, (points, width, colour, label)) in lines.iter().enumerate() {
-        let p: Vec<String> = points
-            .iter()
-            .filter(|p| p.1.is_finite())
-            .map(|p| format!("{:.1},{:.1}", sx(p.0), sy(p.1)))
-            .collect();
-        writeln!(
-            svg,
-            r#"<polyline points="{}" fill="none" stroke="{colour}" stroke-width="{width}"/>"#,
-            p.join(" ")
-        )?;
-        let ly = t + 16.0 + 20.0 * i as f64;
-        writeln!(
-            svg,
-            r#"<line x1="{}" x2="{}" y1="{ly}" y2="{ly}" stroke="{colour}" stroke-width="{width}"/><text x="{}" y="{}">{}</text>"#,
-            w - r + 12.0,
-            w - r + 36.0,
-            w - r + 42.0,
-            ly + 4.0,
-            escape(label)
-        )?;
-    }
-    writeln!(svg, "</svg>")?;
-    std::fs::write(&out, svg).with_context(|| format!("writing {}", out.display()))?;
+        let a = Aligned::new(&curves).context("lining the runs up on env steps")?;
+        let (mean, sd) = (a.mean(), a.std());
+        let mut s = Series::line(
+            format!(
+                "ranked actor, mean of {} runs (band ± ½ sample std), aligned on env steps",
+                runs.len()
+            ),
+            a.grid.iter().copied().zip(mean.iter().copied()).collect(),
+            colour(0),
+        );
+        s.width = 2.5;
+        s.band = Some(
+            a.grid
+                .iter()
+                .zip(mean.iter().zip(&sd))
+                .map(|(x, (m, s))| (*x, m - s / 2.0, m + s / 2.0))
+                .collect(),
+        );
+        LineChart {
+            title: format!(
+                "{} runs of {}: {} of the ranked actor",
+                runs.len(),
+                loaded[0].env,
+                metric.label()
+            ),
+            x_label: "env steps (all actors together)".into(),
+            y_label: y_label.into(),
+            series: vec![s],
+            y_range,
+            from_zero: false,
+        }
+    };
+    std::fs::write(&out, chart.svg()).with_context(|| format!("writing {}", out.display()))?;
     Ok(out)
-}
-
-fn escape(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
 }
 
 #[cfg(test)]
@@ -325,8 +165,8 @@ mod tests {
             3,
             "two actors and the best"
         );
-        // Ticks of a rate carry decimals.
-        assert!(svg.contains(">0.12<"), "{svg}");
+        // Rates are drawn on [0, 1] with round ticks.
+        assert!(svg.contains(">0.2<") && svg.contains(">1.0<"), "{svg}");
         let returns =
             std::fs::read_to_string(run(std::slice::from_ref(&dir), None, Metric::Return).unwrap());
         assert!(returns.unwrap().contains("evaluation return per actor"));
@@ -344,5 +184,48 @@ mod tests {
             .to_string();
         assert!(e.contains("must report success"), "{e}");
         let _ = std::fs::remove_dir_all(&dir);
+    }
+}
+
+#[cfg(test)]
+mod aligned {
+    use super::*;
+    use crate::report::runs::tests::{config, fake_run};
+
+    #[test]
+    fn plot_refuses_runs_of_different_envs_and_aligns_runs_of_different_lengths() {
+        let d = std::env::temp_dir().join(format!("selkd-plot-align-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        // Seed 1 evaluates every 500 env steps, seed 2 every 1000.
+        fake_run(&d.join("a"), &config("pendulum", 1, 2),
+            "epoch,env_steps,best,eval_return_0,eval_return_1\n1,500,0,-400,-900\n2,1000,0,-300,-900\n3,1500,1,-900,-200\n4,2000,1,-900,-100\n", None);
+        fake_run(&d.join("b"), &config("pendulum", 2, 2),
+            "epoch,env_steps,best,eval_return_0,eval_return_1\n1,1000,1,-900,-500\n2,2000,1,-900,-100\n", None);
+        fake_run(
+            &d.join("c"),
+            &config("hopper", 3, 2),
+            "epoch,env_steps,best,eval_return_0,eval_return_1\n1,1000,1,-900,-500\n",
+            None,
+        );
+        let e = run(&[d.join("a"), d.join("c")], None, Metric::Return)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("different envs") && e.contains("a (pendulum)") && e.contains("c (hopper)"),
+            "{e}"
+        );
+        let out = run(
+            &[d.join("a"), d.join("b")],
+            Some(d.join("x.svg")),
+            Metric::Return,
+        )
+        .unwrap();
+        let svg = std::fs::read_to_string(out).unwrap();
+        // Common range [1000, 2000] on a's 500-step grid: 1000, 1500, 2000 (b interpolated to
+        // -300 at 1500); pairing by CSV row would have given two points, a's 500 with b's 1000.
+        let line = svg.lines().find(|l| l.starts_with("<polyline")).unwrap();
+        assert_eq!(line.matches(',').count(), 3, "{line}");
+        assert!(svg.contains("mean of 2 runs"), "{svg}");
+        let _ = std::fs::remove_dir_all(&d);
     }
 }

@@ -1,0 +1,397 @@
+//! Reading run directories (`metrics.csv`, `config.toml`, the final checkpoint's `state.json`)
+//! and an experiment directory (`DIR/<method>/<task>/seed-<s>/`), and the checks that keep
+//! runs that must not be averaged apart: runs of different envs, or of configs that differ in
+//! anything but `run.seed`, `run.threads` and `run.device` (which change neither the task nor
+//! the algorithm).
+
+use anyhow::{bail, Context, Result};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// What the curves show.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Metric {
+    /// Undiscounted evaluation return (`eval_return_i`).
+    Return,
+    /// Evaluation success rate (`eval_success_i`), for tasks that report success.
+    Success,
+}
+
+impl Metric {
+    pub fn label(self) -> &'static str {
+        match self {
+            Metric::Return => "evaluation return",
+            Metric::Success => "evaluation success rate",
+        }
+    }
+}
+
+/// `metrics.csv`: one row per epoch.
+#[derive(Clone, Debug, Default)]
+pub struct Metrics {
+    /// Env steps, all actors together.
+    pub steps: Vec<f64>,
+    /// The ranking's best actor per epoch (`best`), when the file has that column.
+    pub best: Option<Vec<f64>>,
+    /// `eval_return_i`, `[actor][epoch]`.
+    pub returns: Vec<Vec<f64>>,
+    /// `eval_success_i`, `[actor][epoch]` (NaN for tasks without success).
+    pub successes: Vec<Vec<f64>>,
+}
+
+impl Metrics {
+    pub fn read(run: &Path) -> Result<Metrics> {
+        let path = run.join("metrics.csv");
+        let text = std::fs::read_to_string(&path).with_context(|| {
+            format!(
+                "reading {} (is {} a run directory?)",
+                path.display(),
+                run.display()
+            )
+        })?;
+        Self::parse(&text).with_context(|| format!("reading {}", path.display()))
+    }
+
+    pub fn parse(text: &str) -> Result<Metrics> {
+        let mut lines = text.lines();
+        let header: Vec<&str> = lines.next().context("empty file")?.split(',').collect();
+        let col = |name: &str| header.iter().position(|h| *h == name);
+        let prefixed = |prefix: &str| -> Vec<usize> {
+            // eval_return_0, eval_return_1, ... in actor order.
+            (0..).map_while(|i| col(&format!("{prefix}{i}"))).collect()
+        };
+        let steps_col = col("env_steps").context("no env_steps column")?;
+        let best_col = col("best");
+        let (ret, suc) = (prefixed("eval_return_"), prefixed("eval_success_"));
+        if ret.is_empty() {
+            bail!("no eval_return_* columns (written by an older selkd?)");
+        }
+        let mut m = Metrics {
+            best: best_col.map(|_| Vec::new()),
+            returns: vec![Vec::new(); ret.len()],
+            successes: vec![Vec::new(); suc.len()],
+            ..Metrics::default()
+        };
+        for (n, l) in lines.enumerate() {
+            if l.trim().is_empty() {
+                continue;
+            }
+            let v: Vec<f64> = l
+                .split(',')
+                .map(|x| x.trim().parse().unwrap_or(f64::NAN))
+                .collect();
+            if v.len() < header.len() {
+                // A row cut short (the learner killed mid-write): the epochs before it stand.
+                eprintln!(
+                    "selkd: warning: metrics.csv row {} is incomplete; ignored",
+                    n + 2
+                );
+                continue;
+            }
+            m.steps.push(v[steps_col]);
+            if let (Some(b), Some(c)) = (m.best.as_mut(), best_col) {
+                b.push(v[c]);
+            }
+            for (a, &c) in ret.iter().enumerate() {
+                m.returns[a].push(v[c]);
+            }
+            for (a, &c) in suc.iter().enumerate() {
+                m.successes[a].push(v[c]);
+            }
+        }
+        Ok(m)
+    }
+
+    /// Whether the task reports success (some `eval_success_*` value is not NaN).
+    pub fn has_success(&self) -> bool {
+        self.successes.iter().flatten().any(|v| v.is_finite())
+    }
+
+    pub fn actors(&self, metric: Metric) -> &[Vec<f64>] {
+        match metric {
+            Metric::Return => &self.returns,
+            Metric::Success => &self.successes,
+        }
+    }
+
+    /// Per epoch, the in-run evaluation of the actor the ranking picked at that epoch (the
+    /// `best` column); files without that column fall back to the best evaluation of the epoch.
+    pub fn ranked(&self, metric: Metric) -> Vec<f64> {
+        let actors = self.actors(metric);
+        (0..self.steps.len())
+            .map(|e| match &self.best {
+                Some(b) if b[e].is_finite() && (b[e] as usize) < actors.len() => {
+                    actors[b[e] as usize][e]
+                }
+                _ => actors
+                    .iter()
+                    .map(|a| a[e])
+                    .filter(|v| v.is_finite())
+                    .fold(f64::NAN, f64::max),
+            })
+            .collect()
+    }
+
+    /// Per epoch, the mean over actors.
+    pub fn actor_mean(&self, metric: Metric) -> Vec<f64> {
+        let actors = self.actors(metric);
+        (0..self.steps.len())
+            .map(|e| super::align::mean(&actors.iter().map(|a| a[e]).collect::<Vec<_>>()))
+            .collect()
+    }
+}
+
+/// One `selkd train` run directory.
+#[derive(Clone, Debug)]
+pub struct Run {
+    pub dir: PathBuf,
+    /// `config.toml`, the resolved config.
+    pub config: toml::Table,
+    pub env: String,
+    pub seed: u64,
+    /// `run.total_env_steps`.
+    pub budget: u64,
+    /// Env steps the final checkpoint reached (`inserted`), if there is one.
+    pub reached: Option<u64>,
+    /// Empty when the run wrote no metrics.csv yet.
+    pub metrics: Metrics,
+}
+
+/// `table.section.key` as a string, or None.
+fn get<'a>(t: &'a toml::Table, section: &str, key: &str) -> Option<&'a toml::Value> {
+    t.get(section)?.as_table()?.get(key)
+}
+
+impl Run {
+    pub fn load(dir: &Path) -> Result<Run> {
+        let cfg_path = dir.join("config.toml");
+        let config: toml::Table = std::fs::read_to_string(&cfg_path)
+            .with_context(|| {
+                format!(
+                    "reading {} (is {} a run directory?)",
+                    cfg_path.display(),
+                    dir.display()
+                )
+            })?
+            .parse()
+            .with_context(|| format!("reading {}", cfg_path.display()))?;
+        let env = get(&config, "run", "env")
+            .and_then(|v| v.as_str())
+            .with_context(|| format!("{} has no run.env", cfg_path.display()))?
+            .to_string();
+        let budget = get(&config, "run", "total_env_steps")
+            .and_then(|v| v.as_integer())
+            .with_context(|| format!("{} has no run.total_env_steps", cfg_path.display()))?
+            as u64;
+        let seed = get(&config, "run", "seed")
+            .and_then(|v| v.as_integer())
+            .unwrap_or(0) as u64;
+        let state = dir.join("checkpoints/final/state.json");
+        let reached = if state.exists() {
+            let v: serde_json::Value = serde_json::from_str(
+                &std::fs::read_to_string(&state)
+                    .with_context(|| format!("reading {}", state.display()))?,
+            )
+            .with_context(|| format!("reading {}", state.display()))?;
+            Some(
+                v.get("inserted")
+                    .and_then(|i| i.as_u64())
+                    .with_context(|| format!("{} has no `inserted`", state.display()))?,
+            )
+        } else {
+            None
+        };
+        let metrics = if dir.join("metrics.csv").exists() {
+            Metrics::read(dir)?
+        } else {
+            Metrics::default()
+        };
+        Ok(Run {
+            dir: dir.to_path_buf(),
+            config,
+            env,
+            seed,
+            budget,
+            reached,
+            metrics,
+        })
+    }
+
+    /// The final checkpoint reached the budget.
+    pub fn finished(&self) -> bool {
+        self.reached.is_some_and(|r| r >= self.budget)
+    }
+
+    /// Env steps the run got to: the final checkpoint's, else the last epoch's.
+    pub fn env_steps(&self) -> u64 {
+        self.reached
+            .unwrap_or_else(|| self.metrics.steps.last().copied().unwrap_or(0.0) as u64)
+    }
+}
+
+/// Every `section.key = value` of a config but those that may differ between seeds of one method.
+fn comparable(config: &toml::Table) -> BTreeMap<String, String> {
+    let mut out = BTreeMap::new();
+    for (section, v) in config {
+        match v.as_table() {
+            Some(t) => {
+                for (k, v) in t {
+                    out.insert(format!("{section}.{k}"), v.to_string());
+                }
+            }
+            None => {
+                out.insert(section.clone(), v.to_string());
+            }
+        }
+    }
+    for k in ["run.seed", "run.threads", "run.device"] {
+        out.remove(k);
+    }
+    out
+}
+
+/// Refuses runs of different envs, naming each run with its env.
+pub fn check_same_env(runs: &[&Run]) -> Result<()> {
+    if runs.iter().any(|r| r.env != runs[0].env) {
+        let list: Vec<String> = runs
+            .iter()
+            .map(|r| format!("{} ({})", r.dir.display(), r.env))
+            .collect();
+        bail!(
+            "runs of different envs cannot be averaged: {}",
+            list.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// Refuses runs whose configs differ in anything but run.seed, run.threads and run.device,
+/// naming the keys and, for each, the runs' values.
+pub fn check_same_config(runs: &[&Run]) -> Result<()> {
+    check_same_env(runs)?;
+    let first = comparable(&runs[0].config);
+    let mut keys: Vec<String> = Vec::new();
+    let all: Vec<BTreeMap<String, String>> = runs.iter().map(|r| comparable(&r.config)).collect();
+    for c in &all {
+        for k in first.keys().chain(c.keys()) {
+            if first.get(k) != c.get(k) && !keys.contains(k) {
+                keys.push(k.clone());
+            }
+        }
+    }
+    if keys.is_empty() {
+        return Ok(());
+    }
+    keys.sort();
+    let list: Vec<String> = runs
+        .iter()
+        .zip(&all)
+        .map(|(r, c)| {
+            let vals: Vec<String> = keys
+                .iter()
+                .map(|k| format!("{k} = {}", c.get(k).map_or("(unset)", |v| v.as_str())))
+                .collect();
+            format!("{} ({})", r.dir.display(), vals.join(", "))
+        })
+        .collect();
+    bail!(
+        "runs with different configs cannot be averaged (only run.seed, run.threads and run.device may differ): {}",
+        list.join("; ")
+    )
+}
+
+/// The runs of an experiment directory: `[(method, task, run)]`, sorted by method, task, seed.
+pub fn discover(dir: &Path) -> Result<Vec<(String, String, Run)>> {
+    let subdirs = |d: &Path| -> Result<Vec<(String, PathBuf)>> {
+        let mut v: Vec<(String, PathBuf)> = std::fs::read_dir(d)
+            .with_context(|| format!("reading {}", d.display()))?
+            .filter_map(|e| e.ok())
+            .filter(|e| e.path().is_dir())
+            .map(|e| (e.file_name().to_string_lossy().into_owned(), e.path()))
+            .collect();
+        v.sort();
+        Ok(v)
+    };
+    let mut out = Vec::new();
+    for (method, mdir) in subdirs(dir)? {
+        for (task, tdir) in subdirs(&mdir)? {
+            let mut seeds: Vec<(u64, PathBuf)> = subdirs(&tdir)?
+                .into_iter()
+                .filter_map(|(n, p)| Some((n.strip_prefix("seed-")?.parse().ok()?, p)))
+                .filter(|(_, p)| p.join("config.toml").exists())
+                .collect();
+            seeds.sort();
+            for (_, sdir) in seeds {
+                out.push((method.clone(), task.clone(), Run::load(&sdir)?));
+            }
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// A hand-made run directory: config.toml from `config`, metrics.csv, and a final
+    /// state.json with `inserted` when given.
+    pub fn fake_run(dir: &Path, config: &str, metrics: &str, inserted: Option<u64>) {
+        std::fs::create_dir_all(dir).unwrap();
+        std::fs::write(dir.join("config.toml"), config).unwrap();
+        std::fs::write(dir.join("metrics.csv"), metrics).unwrap();
+        if let Some(i) = inserted {
+            let ck = dir.join("checkpoints/final");
+            std::fs::create_dir_all(&ck).unwrap();
+            std::fs::write(ck.join("state.json"), format!("{{\"inserted\": {i}}}")).unwrap();
+        }
+    }
+
+    pub fn config(env: &str, seed: u64, actors: u64) -> String {
+        format!("[run]\nenv = \"{env}\"\nseed = {seed}\ntotal_env_steps = 2000\nthreads = {seed}\n\n[algo]\nactors = {actors}\n")
+    }
+
+    pub const METRICS: &str =
+        "epoch,env_steps,best,eval_return_0,eval_return_1,eval_success_0,eval_success_1\n\
+        1,1000,1,-50.0,-40.0,NaN,NaN\n\
+        2,2000,0,-20.0,-30.0,NaN,NaN\n";
+
+    fn temp(tag: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("selkd-runs-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        d
+    }
+
+    #[test]
+    fn the_ranked_actor_is_the_best_column_s_actor() {
+        let m = Metrics::parse(METRICS).unwrap();
+        assert_eq!(m.ranked(Metric::Return), vec![-40.0, -20.0]);
+        assert_eq!(m.actor_mean(Metric::Return), vec![-45.0, -25.0]);
+        assert!(!m.has_success());
+    }
+
+    #[test]
+    fn runs_of_different_envs_or_configs_are_refused_by_name() {
+        let d = temp("refuse");
+        fake_run(&d.join("a"), &config("pendulum", 1, 2), METRICS, Some(2000));
+        fake_run(&d.join("b"), &config("hopper", 2, 2), METRICS, Some(2000));
+        fake_run(&d.join("c"), &config("pendulum", 3, 3), METRICS, Some(2000));
+        fake_run(&d.join("d"), &config("pendulum", 4, 2), METRICS, Some(1500));
+        let [a, b, c, dd] = ["a", "b", "c", "d"].map(|n| Run::load(&d.join(n)).unwrap());
+        let e = check_same_config(&[&a, &b]).unwrap_err().to_string();
+        assert!(
+            e.contains("different envs") && e.contains("(pendulum)") && e.contains("(hopper)"),
+            "{e}"
+        );
+        assert!(!e.contains('\n'));
+        let e = check_same_config(&[&a, &c]).unwrap_err().to_string();
+        assert!(
+            e.contains("algo.actors = 2") && e.contains("algo.actors = 3"),
+            "{e}"
+        );
+        // Seeds and threads may differ.
+        check_same_config(&[&a, &dd]).unwrap();
+        assert!(a.finished() && !dd.finished());
+        assert_eq!(dd.env_steps(), 1500);
+        let _ = std::fs::remove_dir_all(&d);
+    }
+}
