@@ -1,14 +1,17 @@
 //! `selkd`: run SELKD on this host (`selkd train`), measure it (`selkd bench`), plot its
-//! curves (`selkd plot`) and watch a policy act (`selkd render`).
+//! curves (`selkd plot`), watch a policy act (`selkd render`), and run grids of runs
+//! (`selkd experiment`).
 //!
 //! `selkd train` starts one `learner` and K `actor-worker` processes (the binaries next to this
 //! one), shows a progress line, writes a run directory, restarts a worker that dies, and stops
 //! everything cleanly on Ctrl-C or when the env-step budget is reached.
 
 mod bench;
+mod experiment;
 mod plot;
 mod raycast;
 mod render;
+mod report;
 mod train;
 
 use clap::{Parser, Subcommand};
@@ -40,6 +43,9 @@ enum Command {
     },
     /// Draw one episode of a trained actor (or of random actions) to a GIF or a PNG strip.
     Render(render::RenderArgs),
+    /// Experiments: every (method, task, seed) of an experiment file (experiments/*.toml).
+    #[command(subcommand)]
+    Experiment(experiment::ExperimentCommand),
     /// Benchmarks (commands, not tests).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -49,6 +55,7 @@ fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Train(args) => train::run(args),
+        Command::Experiment(e) => experiment::run(e),
         Command::Bench(b) => bench::run(b).map(|()| 0),
         Command::Render(args) => render::run(args).map(|()| 0),
         Command::Plot { runs, out, metric } => plot::run(&runs, out, metric).map(|p| {
