@@ -80,9 +80,6 @@ pub const KEYS_FREE_TO_CHANGE: [&str; 2] = ["run.threads", "run.total_env_steps"
 pub struct Run {
     /// `<method>/<task>/seed-<s>`, the run's directory below the experiment's, and `--only`'s name.
     pub id: String,
-    pub method: String,
-    pub task: String,
-    pub seed: u64,
     pub dir: PathBuf,
     /// The method's config file (absolute).
     pub config_file: PathBuf,
@@ -275,9 +272,6 @@ impl Experiment {
                     runs.push(Run {
                         dir: dir.join(&id),
                         id,
-                        method: m.name.clone(),
-                        task: task.clone(),
-                        seed: *seed,
                         config_file: m.config.clone(),
                         sets,
                         config,
@@ -420,7 +414,7 @@ mod tests {
                 );
                 for r in &runs {
                     assert_eq!(r.config.run.total_env_steps, exp.total_env_steps);
-                    assert_eq!(r.config.run.env, r.task);
+                    assert_eq!(r.id.split('/').nth(1), Some(r.config.run.env.as_str()));
                 }
                 // The written form reads back as the same experiment (the report reads it).
                 let back: Experiment = toml::from_str(&exp.to_toml()).unwrap();
