@@ -73,7 +73,12 @@ set = { "algo.critics" = 3, "algo.subset" = 2 }
 fn a_stopped_experiment_run_again_skips_finished_runs_and_resumes_the_stopped_one() {
     let (root, exp) = setup("exp-smoke", TWO_BY_TWO);
     let dir = root.join("runs");
-    let ids = ["a/pendulum/seed-1", "b/pendulum/seed-1", "a/pendulum/seed-2", "b/pendulum/seed-2"];
+    let ids = [
+        "a/pendulum/seed-1",
+        "b/pendulum/seed-1",
+        "a/pendulum/seed-2",
+        "b/pendulum/seed-2",
+    ];
     let mut child = spawn({
         let mut c = experiment(&["run"]);
         c.arg(&exp).arg("--dir").arg(&dir).args(["--jobs", "2"]);
@@ -87,9 +92,9 @@ fn a_stopped_experiment_run_again_skips_finished_runs_and_resumes_the_stopped_on
             .copied()
             .filter(|id| final_inserted(&dir.join(id)).is_some_and(|n| n >= 3000))
             .collect();
-        let midway = ids.iter().any(|id| {
-            !finished.contains(id) && dir.join(id).join("checkpoints/latest").exists()
-        });
+        let midway = ids
+            .iter()
+            .any(|id| !finished.contains(id) && dir.join(id).join("checkpoints/latest").exists());
         if !finished.is_empty() && midway {
             break finished;
         }
@@ -214,7 +219,10 @@ fn bad_experiment_files_get_one_line_errors_before_any_run_starts() {
         ("no-methods", ONE.to_string(), vec!["no methods"]),
         (
             "no-tasks",
-            format!("{}{method}", ONE.replace("tasks = [\"pendulum\"]", "tasks = []")),
+            format!(
+                "{}{method}",
+                ONE.replace("tasks = [\"pendulum\"]", "tasks = []")
+            ),
             vec!["no tasks"],
         ),
         (
@@ -246,14 +254,47 @@ fn bad_experiment_files_get_one_line_errors_before_any_run_starts() {
     for (tag, text, wants) in cases {
         let (code, stderr, root) = rejected(&format!("exp-bad-{tag}"), &text);
         assert_eq!(code, Some(2), "{tag}: {stderr}");
-        assert_eq!(stderr.trim().lines().count(), 1, "{tag}: one line: {stderr}");
+        assert_eq!(
+            stderr.trim().lines().count(),
+            1,
+            "{tag}: one line: {stderr}"
+        );
         assert!(stderr.starts_with("selkd: error: "), "{tag}: {stderr}");
         for w in wants {
             assert!(stderr.contains(w), "{tag}: wanted `{w}` in: {stderr}");
         }
-        assert!(!root.join("runs").join("a").exists(), "{tag}: a run started");
+        assert!(
+            !root.join("runs").join("a").exists(),
+            "{tag}: a run started"
+        );
         let _ = std::fs::remove_dir_all(&root);
     }
+    // Bad flags, on a good file.
+    let (root, exp) = setup("exp-bad-flags", &format!("{ONE}{method}"));
+    for (flags, want) in [
+        (
+            &["--only", "a/pendulum/seed-9"][..],
+            "--only a/pendulum/seed-9: no such run",
+        ),
+        (&["--jobs", "0"][..], "--jobs 0"),
+    ] {
+        let out = run({
+            let mut c = experiment(&["run"]);
+            c.arg(&exp).arg("--dir").arg(root.join("runs")).args(flags);
+            c
+        });
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{flags:?}: {stderr}");
+        assert!(
+            stderr.contains(want),
+            "{flags:?}: wanted `{want}` in: {stderr}"
+        );
+        assert!(
+            !root.join("runs").join("a").exists(),
+            "{flags:?}: a run started"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&root);
 }
 
 #[test]
@@ -281,7 +322,10 @@ fn an_existing_run_with_another_config_is_named_with_the_keys_that_differ() {
         "{stderr}"
     );
     // run.total_env_steps and run.threads may change (a raised budget, another --jobs).
-    assert!(!stderr.contains("run.threads") && !stderr.contains("total_env_steps"), "{stderr}");
+    assert!(
+        !stderr.contains("run.threads") && !stderr.contains("total_env_steps"),
+        "{stderr}"
+    );
     assert!(!run_dir.join("logs").exists(), "the run was started");
     let _ = std::fs::remove_dir_all(&root);
 }
@@ -367,6 +411,9 @@ config = "tiny.toml"
         c
     });
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success() && stderr.contains("1 finished (skipped)"), "{stderr}");
+    assert!(
+        out.status.success() && stderr.contains("1 finished (skipped)"),
+        "{stderr}"
+    );
     let _ = std::fs::remove_dir_all(&root);
 }

@@ -39,8 +39,11 @@ pub fn run(args: PlanArgs) -> Result<()> {
     eprintln!("selkd: wrote {} ({} runs)", commands.display(), lines.len());
     if args.slurm {
         let script = dir.join("slurm.sbatch");
-        std::fs::write(&script, sbatch(&args, &exp_name(&args.experiment), &dir, lines.len()))
-            .with_context(|| format!("writing {}", script.display()))?;
+        std::fs::write(
+            &script,
+            sbatch(&args, &exp_name(&args.experiment), &dir, lines.len()),
+        )
+        .with_context(|| format!("writing {}", script.display()))?;
         eprintln!(
             "selkd: wrote {}; submit it with `sbatch {}`",
             script.display(),
@@ -96,8 +99,7 @@ fn absolute(p: &Path) -> Result<PathBuf> {
 /// One shell word: single-quoted unless it is plainly safe.
 fn quote(s: &str) -> String {
     if !s.is_empty()
-        && s
-            .chars()
+        && s.chars()
             .all(|c| c.is_ascii_alphanumeric() || "-_./=:+@".contains(c))
     {
         s.to_string()

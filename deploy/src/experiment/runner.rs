@@ -75,7 +75,12 @@ pub fn run(args: RunArgs) -> Result<i32> {
     rt.block_on(schedule(&runs, todo, jobs, skipped))
 }
 
-fn spawn(run: &Run, resume: Option<&Path>, tx: &mpsc::UnboundedSender<(usize, Outcome)>, index: usize) -> Result<i32> {
+fn spawn(
+    run: &Run,
+    resume: Option<&Path>,
+    tx: &mpsc::UnboundedSender<(usize, Outcome)>,
+    index: usize,
+) -> Result<i32> {
     let logs = run.dir.join("logs");
     std::fs::create_dir_all(&logs)
         .with_context(|| format!("creating run directory {}", run.dir.display()))?;
@@ -154,9 +159,17 @@ async fn schedule(
     let mut stop: Option<i32> = None;
     loop {
         while stop.is_none() && running.len() < jobs {
-            let Some((i, resume)) = todo.pop_front() else { break };
+            let Some((i, resume)) = todo.pop_front() else {
+                break;
+            };
             let pid = spawn(&runs[i], resume.as_deref(), &tx, i)?;
-            running.insert(i, Running { pid, started: Instant::now() });
+            running.insert(
+                i,
+                Running {
+                    pid,
+                    started: Instant::now(),
+                },
+            );
         }
         if running.is_empty() {
             break;
@@ -271,8 +284,18 @@ impl Progress {
         }
     }
 
-    fn show(&mut self, runs: &[Run], running: &HashMap<usize, Running>, left: usize, failed: usize) {
-        if !self.tty && self.last_line.is_some_and(|t| t.elapsed() < Duration::from_secs(10)) {
+    fn show(
+        &mut self,
+        runs: &[Run],
+        running: &HashMap<usize, Running>,
+        left: usize,
+        failed: usize,
+    ) {
+        if !self.tty
+            && self
+                .last_line
+                .is_some_and(|t| t.elapsed() < Duration::from_secs(10))
+        {
             return;
         }
         // From each running run's latest progress: its remaining time, and its projected length.
@@ -289,7 +312,8 @@ impl Progress {
             match p {
                 Some(p) if f(&p, "env_steps") > 0.0 && f(&p, "wall_s") > 0.0 => {
                     let per_step = f(&p, "wall_s") / f(&p, "env_steps");
-                    remaining += (f(&p, "total_env_steps") - f(&p, "env_steps")).max(0.0) * per_step;
+                    remaining +=
+                        (f(&p, "total_env_steps") - f(&p, "env_steps")).max(0.0) * per_step;
                     lengths.push(f(&p, "total_env_steps") * per_step);
                 }
                 _ => known = false,

@@ -5,8 +5,8 @@
 //! with a one-line error that names the method, task or key to change: a sweep that fails on its
 //! fortieth run after two days is the failure this module exists to prevent.
 
-use anyhow::{bail, Context, Result};
 use super::state::{state, State};
+use anyhow::{bail, Context, Result};
 use selkd_learner::config::Config;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
@@ -30,10 +30,10 @@ pub struct Experiment {
     #[serde(default)]
     pub tasks: Vec<String>,
     /// Overrides for every run, `"section.key" = value` (nested tables are read as dotted keys).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
     pub set: toml::Table,
     /// Overrides for the runs of one task, e.g. `[task_set.fpc-assembly]`.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub task_set: BTreeMap<String, toml::Table>,
     #[serde(default, rename = "method")]
     pub methods: Vec<Method>,
@@ -53,7 +53,7 @@ pub struct Method {
     /// A `selkd train` config file, relative to the experiment file.
     pub config: PathBuf,
     /// This method's overrides, applied after the common and per-task ones.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
     pub set: toml::Table,
 }
 
@@ -98,7 +98,10 @@ impl Experiment {
             anyhow::anyhow!(
                 "experiment {}: {}",
                 path.display(),
-                e.to_string().split_whitespace().collect::<Vec<_>>().join(" ")
+                e.to_string()
+                    .split_whitespace()
+                    .collect::<Vec<_>>()
+                    .join(" ")
             )
         })?;
         let base = path
@@ -170,10 +173,7 @@ impl Experiment {
         }
         for t in self.task_set.keys() {
             if !tasks.contains(t.as_str()) {
-                bail!(
-                    "[task_set.{t}]: `{t}` is not in tasks = {:?}",
-                    self.tasks
-                );
+                bail!("[task_set.{t}]: `{t}` is not in tasks = {:?}", self.tasks);
             }
         }
         let mut seeds = BTreeSet::new();
@@ -210,7 +210,9 @@ impl Experiment {
                     bail!("{what}: `{key}` is not a config key; write \"section.key\" = value, e.g. \"algo.actors\" = 3");
                 }
                 if let Some((_, field)) = OWNED_KEYS.iter().find(|(k, _)| *k == key) {
-                    bail!("{what}: `{key}` is set by the experiment's `{field}`; change that instead");
+                    bail!(
+                        "{what}: `{key}` is set by the experiment's `{field}`; change that instead"
+                    );
                 }
             }
         }
@@ -267,8 +269,15 @@ impl Experiment {
                     if !self.sets_key(m, task, "run.threads") {
                         sets.push(format!("run.threads={threads}"));
                     }
-                    let config = Config::from_toml_with_overrides(&text, &sets)
-                        .with_context(|| format!("method `{}` on task `{task}` (config {}, overrides {})", m.name, m.config.display(), sets.join(" ")))?;
+                    let config =
+                        Config::from_toml_with_overrides(&text, &sets).with_context(|| {
+                            format!(
+                                "method `{}` on task `{task}` (config {}, overrides {})",
+                                m.name,
+                                m.config.display(),
+                                sets.join(" ")
+                            )
+                        })?;
                     runs.push(Run {
                         dir: dir.join(&id),
                         id,
@@ -391,8 +400,13 @@ mod tests {
 
     #[test]
     fn nested_and_dotted_keys_flatten_to_the_same_override() {
-        let a: toml::Table = toml::from_str("algo = { actors = 3, hidden = [32, 32] }\nrun.mode = \"async\"").unwrap();
-        let b: toml::Table = toml::from_str("\"algo.actors\" = 3\n\"algo.hidden\" = [32, 32]\n\"run.mode\" = \"async\"").unwrap();
+        let a: toml::Table =
+            toml::from_str("algo = { actors = 3, hidden = [32, 32] }\nrun.mode = \"async\"")
+                .unwrap();
+        let b: toml::Table = toml::from_str(
+            "\"algo.actors\" = 3\n\"algo.hidden\" = [32, 32]\n\"run.mode\" = \"async\"",
+        )
+        .unwrap();
         assert_eq!(flatten(&a), flatten(&b));
         assert!(flatten(&a).contains(&("run.mode".into(), "\"async\"".into())));
     }

@@ -23,7 +23,9 @@ fn inserted(checkpoint: &Path) -> Option<u64> {
         inserted: u64,
     }
     let text = std::fs::read_to_string(checkpoint.join("state.json")).ok()?;
-    serde_json::from_str::<Counters>(&text).ok().map(|c| c.inserted)
+    serde_json::from_str::<Counters>(&text)
+        .ok()
+        .map(|c| c.inserted)
 }
 
 pub fn state(dir: &Path, budget: u64) -> State {
@@ -47,7 +49,11 @@ mod tests {
     fn checkpoint(dir: &Path, name: &str, inserted: u64) {
         let c = dir.join("checkpoints").join(name);
         std::fs::create_dir_all(&c).unwrap();
-        std::fs::write(c.join("state.json"), format!("{{\"inserted\": {inserted}}}")).unwrap();
+        std::fs::write(
+            c.join("state.json"),
+            format!("{{\"inserted\": {inserted}}}"),
+        )
+        .unwrap();
         std::fs::write(dir.join("checkpoints").join("latest"), format!("{name}\n")).unwrap();
     }
 
@@ -57,15 +63,23 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
         assert_eq!(state(&dir, 1000), State::Fresh);
         checkpoint(&dir, "step-500", 500);
-        assert_eq!(state(&dir, 1000), State::Resume(dir.join("checkpoints/step-500")));
+        assert_eq!(
+            state(&dir, 1000),
+            State::Resume(dir.join("checkpoints/step-500"))
+        );
         // Stopped by a signal: `final` below the budget is resumed, not skipped.
         checkpoint(&dir, "final", 700);
-        assert_eq!(state(&dir, 1000), State::Resume(dir.join("checkpoints/final")));
+        assert_eq!(
+            state(&dir, 1000),
+            State::Resume(dir.join("checkpoints/final"))
+        );
         checkpoint(&dir, "final", 1000);
         assert_eq!(state(&dir, 1000), State::Finished);
         // A raised budget makes it a run to continue.
-        assert_eq!(state(&dir, 2000), State::Resume(dir.join("checkpoints/final")));
+        assert_eq!(
+            state(&dir, 2000),
+            State::Resume(dir.join("checkpoints/final"))
+        );
         let _ = std::fs::remove_dir_all(&dir);
     }
-
 }
