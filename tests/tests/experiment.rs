@@ -417,3 +417,38 @@ config = "tiny.toml"
     );
     let _ = std::fs::remove_dir_all(&root);
 }
+
+#[test]
+fn a_failed_run_is_reported_with_its_log_and_the_others_go_on() {
+    let text = format!(
+        "{}[[method]]\nname = \"a\"\nconfig = \"tiny.toml\"\n",
+        ONE.replace("seeds = [1]", "seeds = [1, 2]")
+    );
+    let (root, exp) = setup("exp-failed", &text);
+    let dir = root.join("runs");
+    // A checkpoint that names itself but holds no model: resuming from it fails in the learner.
+    let broken = dir.join("a/pendulum/seed-1/checkpoints");
+    std::fs::create_dir_all(broken.join("step-5")).unwrap();
+    std::fs::write(broken.join("step-5/state.json"), "{\"inserted\": 5}").unwrap();
+    std::fs::write(broken.join("latest"), "step-5\n").unwrap();
+    let out = run({
+        let mut c = experiment(&["run"]);
+        c.arg(&exp).arg("--dir").arg(&dir).args(["--jobs", "1"]);
+        c
+    });
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("selkd: run a/pendulum/seed-1 failed")
+            && stderr.contains("a/pendulum/seed-1/logs/selkd.log")
+            && stderr.contains("1 failed"),
+        "{stderr}"
+    );
+    let other = dir.join("a/pendulum/seed-2");
+    assert!(
+        final_inserted(&other).is_some_and(|n| n >= 1000),
+        "the other run did not go on: {stderr}\n{}",
+        log(&other, "selkd.log")
+    );
+    let _ = std::fs::remove_dir_all(&root);
+}

@@ -225,14 +225,17 @@ async fn schedule(
     })
 }
 
-/// The last non-empty line of a log, for a one-line failure report.
+/// The line of a log that says why a run failed: the last one with an error (`selkd train`
+/// ends with a pointer to the learner's log, which says less), else the last line.
 fn last_line(path: &Path) -> String {
-    tail(path, 4096)
-        .lines()
+    let text = tail(path, 8192);
+    let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
+    lines
+        .iter()
         .rev()
-        .find(|l| !l.trim().is_empty())
-        .unwrap_or("(empty log)")
-        .to_string()
+        .find(|l| l.contains("error") || l.contains("failed"))
+        .or(lines.last())
+        .map_or("(empty log)".to_string(), |l| l.to_string())
 }
 
 /// The last `bytes` of a file (progress.jsonl grows by a line a second; reading it whole every
