@@ -452,3 +452,32 @@ fn a_failed_run_is_reported_with_its_log_and_the_others_go_on() {
     );
     let _ = std::fs::remove_dir_all(&root);
 }
+
+#[test]
+fn a_run_locked_by_another_selkd_is_left_alone() {
+    use std::os::fd::AsRawFd;
+    let text = format!("{ONE}[[method]]\nname = \"a\"\nconfig = \"tiny.toml\"\n");
+    let (root, exp) = setup("exp-locked", &text);
+    let run_dir = root.join("runs/a/pendulum/seed-1");
+    std::fs::create_dir_all(&run_dir).unwrap();
+    // What another `selkd experiment run` training this run holds.
+    let lock = std::fs::File::create(run_dir.join(".selkd.lock")).unwrap();
+    assert_eq!(unsafe { libc::flock(lock.as_raw_fd(), libc::LOCK_EX) }, 0);
+    let out = run({
+        let mut c = experiment(&["run"]);
+        c.arg(&exp).arg("--dir").arg(root.join("runs"));
+        c
+    });
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("run a/pendulum/seed-1 is being trained by another selkd"),
+        "{stderr}"
+    );
+    assert!(
+        !run_dir.join("logs").exists(),
+        "it was started anyway: {stderr}"
+    );
+    drop(lock);
+    let _ = std::fs::remove_dir_all(&root);
+}

@@ -30,6 +30,27 @@ fn child_stop_signal() -> i32 {
 struct Running {
     pid: i32,
     started: Instant,
+    /// Held while the run trains (see [`lock`]).
+    _lock: std::fs::File,
+}
+
+/// Claims a run directory for this process: an exclusive `flock` on `.selkd.lock`, or `None`
+/// when another `selkd experiment run` holds it (the same experiment started twice, or a Slurm
+/// array resubmitted while its first tasks still run). Two `selkd train` in one directory would
+/// each overwrite the other's checkpoints. The lock goes with this process, however it ends.
+fn lock(dir: &Path) -> Result<Option<std::fs::File>> {
+    use std::os::fd::AsRawFd;
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("creating run directory {}", dir.display()))?;
+    let path = dir.join(".selkd.lock");
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&path)
+        .with_context(|| format!("opening {}", path.display()))?;
+    let held = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } == 0;
+    Ok(held.then_some(file))
 }
 
 enum Outcome {
@@ -155,12 +176,22 @@ async fn schedule(
     let mut tick = tokio::time::interval(Duration::from_secs(1));
     let mut progress = Progress::new(runs.len(), jobs, skipped);
     let mut running: HashMap<usize, Running> = HashMap::new();
-    let (mut failed, mut stopped) = (Vec::new(), 0);
+    let (mut failed, mut stopped, mut busy) = (Vec::new(), 0, 0);
     let mut stop: Option<i32> = None;
     loop {
         while stop.is_none() && running.len() < jobs {
             let Some((i, resume)) = todo.pop_front() else {
                 break;
+            };
+            let Some(lock) = lock(&runs[i].dir)? else {
+                progress.clear();
+                eprintln!(
+                    "selkd: run {} is being trained by another selkd (it holds {}); skipping it",
+                    runs[i].id,
+                    runs[i].dir.join(".selkd.lock").display()
+                );
+                busy += 1;
+                continue;
             };
             let pid = spawn(&runs[i], resume.as_deref(), &tx, i)?;
             running.insert(
@@ -168,6 +199,7 @@ async fn schedule(
                 Running {
                     pid,
                     started: Instant::now(),
+                    _lock: lock,
                 },
             );
         }
@@ -210,7 +242,7 @@ async fn schedule(
     progress.clear();
     let done = progress.done;
     eprintln!(
-        "selkd: experiment: {done}/{} runs finished ({skipped} already were), {} failed, {stopped} stopped, {} not started",
+        "selkd: experiment: {done}/{} runs finished ({skipped} already were), {} failed, {stopped} stopped, {busy} trained elsewhere, {} not started",
         runs.len(),
         failed.len(),
         todo.len()
@@ -220,7 +252,7 @@ async fn schedule(
     }
     Ok(match stop {
         Some(sig) => 128 + sig,
-        None if !failed.is_empty() || stopped > 0 => 1,
+        None if !failed.is_empty() || stopped + busy > 0 => 1,
         None => 0,
     })
 }
