@@ -10,7 +10,7 @@ use super::RunArgs;
 use anyhow::{Context, Result};
 use std::collections::{HashMap, VecDeque};
 use std::io::{IsTerminal, Read, Seek, SeekFrom};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 use tokio::process::Command;
@@ -69,16 +69,17 @@ pub fn run(args: RunArgs) -> Result<i32> {
     let (exp, runs) = spec::prepare(&args.experiment, &dir, cores, jobs, &args.only)?;
     super::write_experiment(&exp, &dir)?;
 
-    let mut todo = VecDeque::new();
+    // What each run needs now; decided again when it starts (see `schedule`).
     let (mut skipped, mut resumed) = (0, 0);
+    let mut todo = VecDeque::new();
     for (i, r) in runs.iter().enumerate() {
         match state(&r.dir, r.config.run.total_env_steps) {
             State::Finished => skipped += 1,
-            State::Resume(c) => {
+            State::Resume(_) => {
                 resumed += 1;
-                todo.push_back((i, Some(c)));
+                todo.push_back(i);
             }
-            State::Fresh => todo.push_back((i, None)),
+            State::Fresh => todo.push_back(i),
         }
     }
     let threads = runs.first().map_or(1, |r| r.config.run.threads);
@@ -166,7 +167,7 @@ fn spawn(
 
 async fn schedule(
     runs: &[Run],
-    mut todo: VecDeque<(usize, Option<PathBuf>)>,
+    mut todo: VecDeque<usize>,
     jobs: usize,
     skipped: usize,
 ) -> Result<i32> {
@@ -180,7 +181,7 @@ async fn schedule(
     let mut stop: Option<i32> = None;
     loop {
         while stop.is_none() && running.len() < jobs {
-            let Some((i, resume)) = todo.pop_front() else {
+            let Some(i) = todo.pop_front() else {
                 break;
             };
             let Some(lock) = lock(&runs[i].dir)? else {
@@ -192,6 +193,16 @@ async fn schedule(
                 );
                 busy += 1;
                 continue;
+            };
+            // Judged under the lock, not from the list made at the start: a run that waited in
+            // the queue may have been advanced or finished by another runner meanwhile.
+            let resume = match state(&runs[i].dir, runs[i].config.run.total_env_steps) {
+                State::Finished => {
+                    progress.done += 1; // finished elsewhere: no duration to learn from
+                    continue;
+                }
+                State::Resume(c) => Some(c),
+                State::Fresh => None,
             };
             let pid = spawn(&runs[i], resume.as_deref(), &tx, i)?;
             running.insert(
