@@ -1,6 +1,8 @@
 //! End to end: `selkd experiment run` over real `selkd train` children (stopped by a signal half
-//! way and run again: finished runs are skipped, the stopped one resumes to its budget), its
-//! one-line errors for bad experiment files, and `selkd experiment plan`'s commands and job array.
+//! way and run again: finished runs are skipped, the stopped one resumes to its budget; SIGTERM
+//! stops with a checkpoint and exits 143; a failed run is reported and the others go on; a locked
+//! run is left alone), its one-line errors for bad experiment files, and `selkd experiment
+//! plan`'s commands and job array, whose commands are run here through bash.
 
 mod common;
 use common::*;
@@ -479,5 +481,47 @@ fn a_run_locked_by_another_selkd_is_left_alone() {
         "it was started anyway: {stderr}"
     );
     drop(lock);
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[test]
+fn sigterm_stops_every_running_run_with_a_checkpoint_and_exits_143() {
+    let text = r#"
+total_env_steps = 100000
+seeds = [1]
+tasks = ["pendulum"]
+
+[[method]]
+name = "a"
+config = "tiny.toml"
+"#;
+    let (root, exp) = setup("exp-sigterm", text);
+    let dir = root.join("runs");
+    let run_dir = dir.join("a/pendulum/seed-1");
+    let mut child = spawn({
+        let mut c = experiment(&["run"]);
+        c.arg(&exp).arg("--dir").arg(&dir);
+        c
+    });
+    let t0 = Instant::now();
+    while log(&run_dir, "progress.jsonl").is_empty() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "the run never started: {:?}",
+            child.try_wait()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(143), "{stderr}");
+    let inserted = final_inserted(&run_dir);
+    assert!(
+        inserted.is_some_and(|n| n < 100000),
+        "no final checkpoint below the budget: {inserted:?}\n{}",
+        log(&run_dir, "selkd.log")
+    );
+    assert!(stderr.contains("1 stopped"), "{stderr}");
     let _ = std::fs::remove_dir_all(&root);
 }
