@@ -1,12 +1,14 @@
 //! `selkd`: run SELKD on this host (`selkd train`), measure it (`selkd bench`), plot its
-//! curves (`selkd plot`), report an experiment (`selkd experiment report`: the paper's Table 2
-//! and Figures 3–9) and watch a policy act (`selkd render`).
+//! curves (`selkd plot`), watch a policy act (`selkd render`), and run and report experiments
+//! (`selkd experiment run|plan|report`: methods × tasks × seeds, the paper's Table 2 and
+//! Figures 3–9).
 //!
 //! `selkd train` starts one `learner` and K `actor-worker` processes (the binaries next to this
 //! one), shows a progress line, writes a run directory, restarts a worker that dies, and stops
 //! everything cleanly on Ctrl-C or when the env-step budget is reached.
 
 mod bench;
+mod experiment;
 mod plot;
 mod raycast;
 mod render;
@@ -42,30 +44,21 @@ enum Command {
     },
     /// Draw one episode of a trained actor (or of random actions) to a GIF or a PNG strip.
     Render(render::RenderArgs),
+    /// Experiments: every (method, task, seed) of an experiment file (experiments/*.toml).
+    #[command(subcommand)]
+    Experiment(experiment::ExperimentCommand),
     /// Benchmarks (commands, not tests).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
-    /// Experiments: many runs (methods × tasks × seeds) and their report.
-    #[command(subcommand)]
-    Experiment(ExperimentCommand),
-}
-
-#[derive(Subcommand, Debug)]
-enum ExperimentCommand {
-    /// Table 2 and Figures 3–9 from DIR/<method>/<task>/seed-<s>/ runs: DIR/report.md.
-    Report(report::ReportArgs),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Train(args) => train::run(args),
+        Command::Experiment(e) => experiment::run(e),
         Command::Bench(b) => bench::run(b).map(|()| 0),
         Command::Render(args) => render::run(args).map(|()| 0),
-        Command::Experiment(ExperimentCommand::Report(args)) => report::run(&args).map(|p| {
-            eprintln!("selkd: wrote {}", p.display());
-            0
-        }),
         Command::Plot { runs, out, metric } => plot::run(&runs, out, metric).map(|p| {
             eprintln!("selkd: wrote {}", p.display());
             0

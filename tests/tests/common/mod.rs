@@ -1,6 +1,8 @@
 //! Helpers for the end-to-end tests: find the built binaries, run `selkd train`, read run outputs.
 #![allow(dead_code)]
 
+pub mod report_check;
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 

@@ -1,0 +1,417 @@
+//! `selkd experiment run`: every (method, task, seed) as a child `selkd train`, J at a time.
+//!
+//! Each run is an ordinary run directory, so everything `selkd train` does (checkpoints, resume,
+//! restarting workers) is reused rather than re-implemented; this module only decides which runs
+//! to start, how (fresh or `--resume`), and what to do when they end or the user stops.
+
+use super::spec::{self, Run};
+use super::state::{state, State};
+use super::RunArgs;
+use anyhow::{Context, Result};
+use std::collections::{HashMap, VecDeque};
+use std::io::{IsTerminal, Read, Seek, SeekFrom};
+use std::path::Path;
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+use tokio::process::Command;
+use tokio::signal::unix::{signal, SignalKind};
+use tokio::sync::mpsc;
+
+struct Running {
+    pid: i32,
+    started: Instant,
+    /// Held while the run trains (see [`lock`]).
+    _lock: std::fs::File,
+}
+
+/// Claims a run directory for this process: an exclusive `flock` on `.selkd.lock`, or `None`
+/// when another `selkd experiment run` holds it (the same experiment started twice, or a Slurm
+/// array resubmitted while its first tasks still run). Two `selkd train` in one directory would
+/// each overwrite the other's checkpoints. The lock goes with this process, however it ends.
+fn lock(dir: &Path) -> Result<Option<std::fs::File>> {
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("creating run directory {}", dir.display()))?;
+    let path = dir.join(".selkd.lock");
+    match selkd_protocol::lock::pid_lock(&path) {
+        Ok(f) => Ok(Some(f)),
+        Err(selkd_protocol::lock::LockError::Held(_)) => Ok(None),
+        Err(e) => Err(e).with_context(|| format!("locking {}", path.display())),
+    }
+}
+
+/// A run that never reached a checkpoint has nothing to resume: clear what it left (its
+/// metrics rows and an empty checkpoints folder) so that it starts again from the beginning;
+/// `selkd train` refuses to start a new run over an old one.
+fn clear_unresumable(dir: &Path) -> Result<()> {
+    let metrics = dir.join("metrics.csv");
+    if metrics.exists() {
+        std::fs::remove_file(&metrics)
+            .with_context(|| format!("removing {}", metrics.display()))?;
+    }
+    let checkpoints = dir.join("checkpoints");
+    if checkpoints.exists() {
+        std::fs::remove_dir_all(&checkpoints)
+            .with_context(|| format!("removing {}", checkpoints.display()))?;
+    }
+    Ok(())
+}
+
+enum Outcome {
+    Finished,
+    Stopped,
+    Failed(String),
+}
+
+pub fn run(args: RunArgs) -> Result<i32> {
+    let dir = super::experiment_dir(&args.experiment, args.dir.as_deref());
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let jobs = args.jobs.unwrap_or(cores);
+    if jobs == 0 {
+        anyhow::bail!("--jobs 0: at least one run must be able to run; leave it out for one per core ({cores})");
+    }
+    let (exp, runs) = spec::prepare(&args.experiment, &dir, cores, jobs, &args.only)?;
+    super::write_experiment(&exp, &dir)?;
+
+    // What each run needs now; decided again when it starts (see `schedule`).
+    let (mut skipped, mut resumed) = (0, 0);
+    let mut todo = VecDeque::new();
+    for (i, r) in runs.iter().enumerate() {
+        match state(&r.dir, r.config.run.total_env_steps) {
+            State::Finished => skipped += 1,
+            State::Resume(_) => {
+                resumed += 1;
+                todo.push_back(i);
+            }
+            State::Fresh => todo.push_back(i),
+        }
+    }
+    let threads = runs.first().map_or(1, |r| r.config.run.threads);
+    eprintln!(
+        "selkd: experiment {}: {} runs: {skipped} finished (skipped), {resumed} to resume, {} to start; {} at a time, run.threads = {threads} unless the experiment sets it → {}",
+        args.experiment.display(),
+        runs.len(),
+        todo.len() - resumed,
+        jobs.min(todo.len().max(1)),
+        dir.display()
+    );
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(schedule(&runs, todo, jobs, skipped))
+}
+
+fn spawn(
+    run: &Run,
+    resume: Option<&Path>,
+    tx: &mpsc::UnboundedSender<(usize, Outcome)>,
+    index: usize,
+) -> Result<i32> {
+    let logs = run.dir.join("logs");
+    std::fs::create_dir_all(&logs)
+        .with_context(|| format!("creating run directory {}", run.dir.display()))?;
+    let log_path = logs.join("selkd.log");
+    let log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log_path)
+        .with_context(|| format!("opening {}", log_path.display()))?;
+    let mut cmd = Command::new(std::env::current_exe().context("locating selkd")?);
+    cmd.arg("train")
+        .arg("--config")
+        .arg(&run.config_file)
+        .args(run.sets.iter().flat_map(|s| ["--set", s.as_str()]))
+        .arg("--run-dir")
+        .arg(&run.dir);
+    if let Some(c) = resume {
+        cmd.arg("--resume").arg(c);
+    }
+    // Its own process group: a Ctrl-C at the terminal reaches only this process, which then
+    // stops every child once, in order, instead of each child seeing the signal by itself.
+    cmd.process_group(0)
+        .stdin(Stdio::null())
+        .stdout(log.try_clone()?)
+        .stderr(log);
+    // If this process dies without stopping them, the children stop themselves.
+    unsafe {
+        cmd.pre_exec(|| {
+            libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+            Ok(())
+        });
+    }
+    let mut child = cmd
+        .spawn()
+        .with_context(|| format!("run {}: starting selkd train", run.id))?;
+    let pid = child.id().unwrap_or(0) as i32;
+    let tx = tx.clone();
+    let (budget, dir) = (run.config.run.total_env_steps, run.dir.clone());
+    tokio::spawn(async move {
+        use std::os::unix::process::ExitStatusExt;
+        let outcome = match child.wait().await {
+            Ok(s) if s.success() => {
+                if state(&dir, budget) == State::Finished {
+                    Outcome::Finished
+                } else {
+                    Outcome::Failed("exited 0 but its final checkpoint is below the budget".into())
+                }
+            }
+            Ok(s)
+                if matches!(s.code(), Some(130) | Some(143))
+                    || matches!(s.signal(), Some(libc::SIGINT) | Some(libc::SIGTERM)) =>
+            {
+                Outcome::Stopped
+            }
+            Ok(s) => Outcome::Failed(s.to_string()),
+            Err(e) => Outcome::Failed(format!("waiting for it: {e}")),
+        };
+        let _ = tx.send((index, outcome));
+    });
+    Ok(pid)
+}
+
+async fn schedule(
+    runs: &[Run],
+    mut todo: VecDeque<usize>,
+    jobs: usize,
+    skipped: usize,
+) -> Result<i32> {
+    let (tx, mut rx) = mpsc::unbounded_channel();
+    let mut sigint = signal(SignalKind::interrupt())?;
+    let mut sigterm = signal(SignalKind::terminate())?;
+    let mut tick = tokio::time::interval(Duration::from_secs(1));
+    let mut progress = Progress::new(runs.len(), jobs, skipped);
+    let mut running: HashMap<usize, Running> = HashMap::new();
+    let (mut failed, mut stopped, mut busy) = (Vec::new(), 0, 0);
+    let mut stop: Option<i32> = None;
+    loop {
+        while stop.is_none() && running.len() < jobs {
+            let Some(i) = todo.pop_front() else {
+                break;
+            };
+            let Some(lock) = lock(&runs[i].dir)? else {
+                progress.clear();
+                eprintln!(
+                    "selkd: run {} is being trained by another selkd (it holds {}); skipping it",
+                    runs[i].id,
+                    runs[i].dir.join(".selkd.lock").display()
+                );
+                busy += 1;
+                continue;
+            };
+            // Judged under the lock, not from the list made at the start: a run that waited in
+            // the queue may have been advanced or finished by another runner meanwhile.
+            let resume = match state(&runs[i].dir, runs[i].config.run.total_env_steps) {
+                State::Finished => {
+                    progress.done += 1; // finished elsewhere: no duration to learn from
+                    continue;
+                }
+                State::Resume(c) => Some(c),
+                State::Fresh => {
+                    clear_unresumable(&runs[i].dir)?;
+                    None
+                }
+            };
+            let pid = spawn(&runs[i], resume.as_deref(), &tx, i)?;
+            running.insert(
+                i,
+                Running {
+                    pid,
+                    started: Instant::now(),
+                    _lock: lock,
+                },
+            );
+        }
+        if running.is_empty() {
+            break;
+        }
+        tokio::select! {
+            _ = sigint.recv(), if stop.is_none() => stop = Some(libc::SIGINT),
+            _ = sigterm.recv(), if stop.is_none() => stop = Some(libc::SIGTERM),
+            Some((i, outcome)) = rx.recv() => {
+                let r = running.remove(&i).expect("a started run");
+                match outcome {
+                    Outcome::Finished => progress.finished(r.started.elapsed()),
+                    Outcome::Stopped => stopped += 1,
+                    Outcome::Failed(why) => {
+                        let log = runs[i].dir.join("logs").join("selkd.log");
+                        progress.clear();
+                        eprintln!("selkd: run {} failed ({why}): {}\nselkd: its log: {}", runs[i].id, last_line(&log), log.display());
+                        failed.push(runs[i].id.clone());
+                    }
+                }
+                continue;
+            }
+            _ = tick.tick() => {
+                progress.show(runs, &running, todo.len(), failed.len());
+                continue;
+            }
+        }
+        // A stop was asked for: every running run writes its checkpoint and exits.
+        progress.clear();
+        eprintln!(
+            "selkd: stopping {} running runs (each writes a checkpoint; run the experiment again to resume them)",
+            running.len()
+        );
+        // SIGTERM, as a scheduler or `kill` sends: `selkd train` stops with a checkpoint.
+        let sig = libc::SIGTERM;
+        for r in running.values() {
+            unsafe { libc::kill(r.pid, sig) };
+        }
+    }
+    progress.clear();
+    let done = progress.done;
+    eprintln!(
+        "selkd: experiment: {done}/{} runs finished ({skipped} already were), {} failed, {stopped} stopped, {busy} trained elsewhere, {} not started",
+        runs.len(),
+        failed.len(),
+        todo.len()
+    );
+    if !failed.is_empty() {
+        eprintln!("selkd: failed runs: {}", failed.join(", "));
+    }
+    Ok(match stop {
+        Some(sig) => 128 + sig,
+        None if !failed.is_empty() || stopped + busy > 0 => 1,
+        None => 0,
+    })
+}
+
+/// The line of a log that says why a run failed: the last one with an error (`selkd train`
+/// ends with a pointer to the learner's log, which says less), else the last line.
+fn last_line(path: &Path) -> String {
+    let text = tail(path, 8192);
+    let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
+    lines
+        .iter()
+        .rev()
+        .find(|l| l.contains("error") || l.contains("failed"))
+        .or(lines.last())
+        .map_or("(empty log)".to_string(), |l| l.to_string())
+}
+
+/// The last `bytes` of a file (progress.jsonl grows by a line a second; reading it whole every
+/// second for J runs would not scale to day-long runs).
+fn tail(path: &Path, bytes: u64) -> String {
+    let Ok(mut f) = std::fs::File::open(path) else {
+        return String::new();
+    };
+    let len = f.metadata().map_or(0, |m| m.len());
+    let _ = f.seek(SeekFrom::Start(len.saturating_sub(bytes)));
+    let mut buf = Vec::new();
+    let _ = f.read_to_end(&mut buf);
+    String::from_utf8_lossy(&buf).into_owned()
+}
+
+/// The experiment's one progress line.
+struct Progress {
+    total: usize,
+    jobs: usize,
+    done: usize,
+    /// Wall time of runs that finished in this invocation, for the ETA of those not started.
+    durations: Vec<f64>,
+    tty: bool,
+    started: Instant,
+    last_line: Option<Instant>,
+}
+
+impl Progress {
+    fn new(total: usize, jobs: usize, skipped: usize) -> Self {
+        Self {
+            total,
+            jobs,
+            done: skipped,
+            durations: Vec::new(),
+            tty: std::io::stderr().is_terminal(),
+            started: Instant::now(),
+            last_line: None,
+        }
+    }
+
+    fn finished(&mut self, took: Duration) {
+        self.done += 1;
+        self.durations.push(took.as_secs_f64());
+    }
+
+    fn clear(&self) {
+        if self.tty {
+            eprint!("\r\x1b[K");
+        }
+    }
+
+    fn show(
+        &mut self,
+        runs: &[Run],
+        running: &HashMap<usize, Running>,
+        left: usize,
+        failed: usize,
+    ) {
+        if !self.tty
+            && self
+                .last_line
+                .is_some_and(|t| t.elapsed() < Duration::from_secs(10))
+        {
+            return;
+        }
+        // From each running run's latest progress: its remaining time, and its projected length.
+        let mut remaining = 0.0;
+        let mut lengths = self.durations.clone();
+        let mut known = true;
+        for &i in running.keys() {
+            let line = tail(&runs[i].dir.join("logs").join("progress.jsonl"), 4096);
+            let p = line
+                .lines()
+                .rev()
+                .find_map(|l| serde_json::from_str::<serde_json::Value>(l).ok());
+            let f = |p: &serde_json::Value, k: &str| p[k].as_f64().unwrap_or(0.0);
+            match p {
+                Some(p) if f(&p, "env_steps") > 0.0 && f(&p, "wall_s") > 0.0 => {
+                    let per_step = f(&p, "wall_s") / f(&p, "env_steps");
+                    remaining +=
+                        (f(&p, "total_env_steps") - f(&p, "env_steps")).max(0.0) * per_step;
+                    lengths.push(f(&p, "total_env_steps") * per_step);
+                }
+                _ => known = false,
+            }
+        }
+        let eta = if lengths.is_empty() || (!known && self.durations.is_empty()) {
+            "–".to_string()
+        } else {
+            let mean = lengths.iter().sum::<f64>() / lengths.len() as f64;
+            let work = remaining + left as f64 * mean;
+            duration(work / self.jobs.min(running.len() + left).max(1) as f64)
+        };
+        let line = format!(
+            "[{}] runs: {}/{} done, {} running, {left} left, {failed} failed | ETA {eta}",
+            duration(self.started.elapsed().as_secs_f64()),
+            self.done,
+            self.total,
+            running.len(),
+        );
+        if self.tty {
+            eprint!("\r\x1b[K{line}");
+        } else {
+            eprintln!("{line}");
+        }
+        self.last_line = Some(Instant::now());
+    }
+}
+
+fn duration(s: f64) -> String {
+    let s = s.max(0.0) as u64;
+    match s {
+        0..=59 => format!("{s}s"),
+        60..=3599 => format!("{}m{:02}s", s / 60, s % 60),
+        _ => format!("{}h{:02}m", s / 3600, (s % 3600) / 60),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn durations_read_at_a_glance() {
+        assert_eq!(duration(42.0), "42s");
+        assert_eq!(duration(125.0), "2m05s");
+        assert_eq!(duration(7300.0), "2h01m");
+    }
+}

@@ -1,0 +1,441 @@
+//! The experiment file: its format, its checks, and its expansion into runs whose configs are
+//! resolved before anything starts.
+//!
+//! Everything a user can get wrong is found here, once, before the first child process starts,
+//! with a one-line error that names the method, task or key to change: a sweep that fails on its
+//! fortieth run after two days is the failure this module exists to prevent.
+
+use super::state::{state, State};
+use anyhow::{bail, Context, Result};
+use selkd_learner::config::Config;
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+/// An experiment file (TOML). The format is documented in the README ("Experiments") and at the
+/// top of every file in `experiments/`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Experiment {
+    /// One sentence for the report's heading.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub description: Option<String>,
+    /// Every run's budget (`run.total_env_steps`: transitions of all actors together).
+    #[serde(default)]
+    pub total_env_steps: u64,
+    /// Every (method, task) pair runs once per seed (`run.seed`).
+    #[serde(default)]
+    pub seeds: Vec<u64>,
+    /// Env registry names (`run.env`).
+    #[serde(default)]
+    pub tasks: Vec<String>,
+    /// Overrides for every run, `"section.key" = value` (nested tables are read as dotted keys).
+    #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
+    pub set: toml::Table,
+    /// Overrides for the runs of one task, e.g. `[task_set.fpc-assembly]`.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub task_set: BTreeMap<String, toml::Table>,
+    #[serde(default, rename = "method")]
+    pub methods: Vec<Method>,
+    /// Which methods the report draws together (`selkd experiment report`).
+    #[serde(default, rename = "figure", skip_serializing_if = "Vec::is_empty")]
+    pub figures: Vec<Figure>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Method {
+    /// Directory name of its runs (letters, digits, `-`, `_`, `.`).
+    pub name: String,
+    /// Legend text for the report (default: `name`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub label: Option<String>,
+    /// A `selkd train` config file, relative to the experiment file.
+    pub config: PathBuf,
+    /// This method's overrides, applied after the common and per-task ones.
+    #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
+    pub set: toml::Table,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Figure {
+    pub title: String,
+    pub methods: Vec<String>,
+}
+
+/// The keys an experiment sets itself from `tasks`, `seeds` and `total_env_steps`.
+const OWNED_KEYS: [(&str, &str); 3] = [
+    ("run.env", "tasks"),
+    ("run.seed", "seeds"),
+    ("run.total_env_steps", "total_env_steps"),
+];
+
+/// Keys whose change does not make an existing run directory another run: the libtorch thread
+/// count follows `--jobs`, and a raised budget is how a finished run is trained further.
+pub const KEYS_FREE_TO_CHANGE: [&str; 2] = ["run.threads", "run.total_env_steps"];
+
+/// One (method, task, seed): an ordinary `selkd train` run directory.
+#[derive(Clone, Debug)]
+pub struct Run {
+    /// `<method>/<task>/seed-<s>`, the run's directory below the experiment's, and `--only`'s name.
+    pub id: String,
+    pub dir: PathBuf,
+    /// The method's config file (absolute).
+    pub config_file: PathBuf,
+    /// `--set` arguments for `selkd train`, in the order they apply.
+    pub sets: Vec<String>,
+    /// What `selkd train --config config_file --set sets…` resolves to.
+    pub config: Config,
+}
+
+impl Experiment {
+    /// Reads and checks an experiment file; config paths become absolute (relative to the file).
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("reading experiment {}", path.display()))?;
+        let mut exp: Experiment = toml::from_str(&text).map_err(|e| {
+            anyhow::anyhow!(
+                "experiment {}: {}",
+                path.display(),
+                e.to_string()
+                    .split_whitespace()
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            )
+        })?;
+        let base = path
+            .canonicalize()
+            .with_context(|| format!("locating {}", path.display()))?
+            .parent()
+            .map(Path::to_path_buf)
+            .unwrap_or_default();
+        for m in &mut exp.methods {
+            let abs = base.join(&m.config);
+            m.config = abs.canonicalize().map_err(|_| {
+                anyhow::anyhow!(
+                    "experiment {}: method `{}`: config file {} does not exist (looked for {}; paths are relative to the experiment file)",
+                    path.display(),
+                    m.name,
+                    m.config.display(),
+                    abs.display()
+                )
+            })?;
+        }
+        exp.check()
+            .with_context(|| format!("experiment {}", path.display()))?;
+        Ok(exp)
+    }
+
+    /// The checks that need no config file.
+    fn check(&self) -> Result<()> {
+        if self.methods.is_empty() {
+            bail!("no methods: add at least one [[method]] with a name and a config");
+        }
+        if self.tasks.is_empty() {
+            bail!("no tasks: set tasks = [\"pendulum\", ...] (env registry names)");
+        }
+        if self.seeds.is_empty() {
+            bail!("no seeds: set seeds = [1, 2, 3, ...]");
+        }
+        if self.total_env_steps == 0 {
+            bail!("total_env_steps must be at least 1 (every run's budget, env steps of all actors together)");
+        }
+        let mut names = BTreeSet::new();
+        for m in &self.methods {
+            let ok = !m.name.is_empty()
+                && !m.name.starts_with('.')
+                && m.name
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c));
+            if !ok {
+                bail!("method name `{}` must be letters, digits, `-`, `_` or `.` (it names a directory)", m.name);
+            }
+            if !names.insert(m.name.as_str()) {
+                bail!(
+                    "two methods are named `{}`: method names must be unique",
+                    m.name
+                );
+            }
+        }
+        let known = selkd_envs::names();
+        let mut tasks = BTreeSet::new();
+        for t in &self.tasks {
+            if !known.contains(&t.as_str()) {
+                bail!(
+                    "tasks: `{t}` is not a known env; choose from: {}",
+                    known.join(", ")
+                );
+            }
+            if !tasks.insert(t.as_str()) {
+                bail!("tasks: `{t}` is listed twice");
+            }
+        }
+        for t in self.task_set.keys() {
+            if !tasks.contains(t.as_str()) {
+                bail!("[task_set.{t}]: `{t}` is not in tasks = {:?}", self.tasks);
+            }
+        }
+        let mut seeds = BTreeSet::new();
+        for s in &self.seeds {
+            if !seeds.insert(s) {
+                bail!("seeds: {s} is listed twice");
+            }
+        }
+        for f in &self.figures {
+            for m in &f.methods {
+                if !names.contains(m.as_str()) {
+                    bail!(
+                        "figure \"{}\": no method is named `{m}` (methods: {})",
+                        f.title,
+                        names.iter().copied().collect::<Vec<_>>().join(", ")
+                    );
+                }
+            }
+        }
+        let tables = std::iter::once(("set".to_string(), &self.set))
+            .chain(
+                self.task_set
+                    .iter()
+                    .map(|(t, s)| (format!("[task_set.{t}]"), s)),
+            )
+            .chain(
+                self.methods
+                    .iter()
+                    .map(|m| (format!("method `{}`: set", m.name), &m.set)),
+            );
+        for (what, table) in tables {
+            for (key, _) in flatten(table) {
+                if !key.contains('.') {
+                    bail!("{what}: `{key}` is not a config key; write \"section.key\" = value, e.g. \"algo.actors\" = 3");
+                }
+                if let Some((_, field)) = OWNED_KEYS.iter().find(|(k, _)| *k == key) {
+                    bail!(
+                        "{what}: `{key}` is set by the experiment's `{field}`; change that instead"
+                    );
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Does any of the experiment's overrides set `key` for this (method, task)?
+    fn sets_key(&self, method: &Method, task: &str, key: &str) -> bool {
+        [Some(&self.set), self.task_set.get(task), Some(&method.set)]
+            .into_iter()
+            .flatten()
+            .any(|t| flatten(t).iter().any(|(k, _)| k == key))
+    }
+
+    /// The ids of every run, in the order they start: seed-major, so that with fewer jobs than
+    /// runs each seed's sweep is complete before the next one begins (a half-done experiment
+    /// still compares every method).
+    pub fn run_ids(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for seed in &self.seeds {
+            for task in &self.tasks {
+                for m in &self.methods {
+                    out.push(format!("{}/{task}/seed-{seed}", m.name));
+                }
+            }
+        }
+        out
+    }
+
+    /// Every run with its resolved config. `threads` is `run.threads` for runs whose experiment
+    /// overrides leave it unset (the method's config file does not count: it was written for a
+    /// run alone, not for J at once).
+    pub fn resolve(&self, dir: &Path, threads: usize) -> Result<Vec<Run>> {
+        let mut runs = Vec::new();
+        for seed in &self.seeds {
+            for task in &self.tasks {
+                for m in &self.methods {
+                    let id = format!("{}/{task}/seed-{seed}", m.name);
+                    let text = std::fs::read_to_string(&m.config).with_context(|| {
+                        format!("method `{}`: reading {}", m.name, m.config.display())
+                    })?;
+                    let mut sets = Vec::new();
+                    for table in [Some(&self.set), self.task_set.get(task), Some(&m.set)]
+                        .into_iter()
+                        .flatten()
+                    {
+                        for (k, v) in flatten(table) {
+                            sets.push(format!("{k}={v}"));
+                        }
+                    }
+                    sets.push(format!("run.env={task}"));
+                    sets.push(format!("run.seed={seed}"));
+                    sets.push(format!("run.total_env_steps={}", self.total_env_steps));
+                    if !self.sets_key(m, task, "run.threads") {
+                        sets.push(format!("run.threads={threads}"));
+                    }
+                    let config =
+                        Config::from_toml_with_overrides(&text, &sets).with_context(|| {
+                            format!(
+                                "method `{}` on task `{task}` (config {}, overrides {})",
+                                m.name,
+                                m.config.display(),
+                                sets.join(" ")
+                            )
+                        })?;
+                    runs.push(Run {
+                        dir: dir.join(&id),
+                        id,
+                        config_file: m.config.clone(),
+                        sets,
+                        config,
+                    });
+                }
+            }
+        }
+        Ok(runs)
+    }
+
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("experiment serialises")
+    }
+}
+
+/// A table's leaves as (dotted key, value as TOML text), so `{ algo = { actors = 3 } }` and
+/// `{ "algo.actors" = 3 }` both give `algo.actors=3`, the `--set` form `selkd train` reads.
+fn flatten(table: &toml::Table) -> Vec<(String, String)> {
+    fn walk(prefix: &str, t: &toml::Table, out: &mut Vec<(String, String)>) {
+        for (k, v) in t {
+            let key = if prefix.is_empty() {
+                k.clone()
+            } else {
+                format!("{prefix}.{k}")
+            };
+            match v {
+                toml::Value::Table(inner) if !inner.is_empty() => walk(&key, inner, out),
+                v => out.push((key, v.to_string())),
+            }
+        }
+    }
+    let mut out = Vec::new();
+    walk("", table, &mut out);
+    out
+}
+
+/// Checks that an existing run directory holds the same run: its `config.toml` must equal the
+/// resolved config except for [`KEYS_FREE_TO_CHANGE`]. Returns the differing keys.
+pub fn config_differences(run: &Run) -> Result<Vec<String>> {
+    let path = run.dir.join("config.toml");
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        return Ok(Vec::new()); // a directory nothing has been trained in yet
+    };
+    let old = Config::from_toml_with_overrides(&text, &[])
+        .with_context(|| format!("run {}: reading {}", run.id, path.display()))?;
+    let as_table = |c: &Config| -> toml::Table {
+        toml::from_str(&c.to_toml()).expect("a config's TOML parses")
+    };
+    let (old, new) = (flatten(&as_table(&old)), flatten(&as_table(&run.config)));
+    let old: BTreeMap<_, _> = old.into_iter().collect();
+    let new: BTreeMap<_, _> = new.into_iter().collect();
+    let keys: BTreeSet<&String> = old.keys().chain(new.keys()).collect();
+    Ok(keys
+        .into_iter()
+        .filter(|k| !KEYS_FREE_TO_CHANGE.contains(&k.as_str()) && old.get(*k) != new.get(*k))
+        .map(|k| {
+            format!(
+                "{k} ({} there, {} now)",
+                old.get(k).map_or("unset", String::as_str),
+                new.get(k).map_or("unset", String::as_str)
+            )
+        })
+        .collect())
+}
+
+/// Loads, resolves and checks every run against its directory: the one gate before any start.
+/// `only` (run ids) narrows the runs; `cores` and `jobs` set the default `run.threads`.
+pub fn prepare(
+    path: &Path,
+    dir: &Path,
+    cores: usize,
+    jobs: usize,
+    only: &[String],
+) -> Result<(Experiment, Vec<Run>)> {
+    let exp = Experiment::load(path)?;
+    let ids = exp.run_ids();
+    for o in only {
+        if !ids.contains(o) {
+            bail!(
+                "--only {o}: no such run; runs are named <method>/<task>/seed-<s>, e.g. {}",
+                ids[0]
+            );
+        }
+    }
+    // Split the cores over the runs that will train at once, so J runs never ask for more
+    // libtorch threads than there are cores: oversubscribed, a run's update rate collapsed to
+    // 3–8 updates/s, against 65–75 with one thread each.
+    let at_once = ids
+        .iter()
+        .filter(|id| only.is_empty() || only.contains(id))
+        .filter(|id| state(&dir.join(id.as_str()), exp.total_env_steps) != State::Finished)
+        .count()
+        .min(jobs)
+        .max(1);
+    let threads = (cores / at_once).max(1);
+    let mut runs = exp.resolve(dir, threads)?;
+    if !only.is_empty() {
+        runs.retain(|r| only.contains(&r.id));
+    }
+    for r in &runs {
+        let diff = config_differences(r)?;
+        if !diff.is_empty() {
+            bail!(
+                "run {} already exists in {} with another config: {}; restore the experiment's settings, or give it another --dir",
+                r.id,
+                r.dir.display(),
+                diff.join(", ")
+            );
+        }
+    }
+    Ok((exp, runs))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nested_and_dotted_keys_flatten_to_the_same_override() {
+        let a: toml::Table =
+            toml::from_str("algo = { actors = 3, hidden = [32, 32] }\nrun.mode = \"async\"")
+                .unwrap();
+        let b: toml::Table = toml::from_str(
+            "\"algo.actors\" = 3\n\"algo.hidden\" = [32, 32]\n\"run.mode\" = \"async\"",
+        )
+        .unwrap();
+        assert_eq!(flatten(&a), flatten(&b));
+        assert!(flatten(&a).contains(&("run.mode".into(), "\"async\"".into())));
+    }
+
+    #[test]
+    fn every_shipped_experiment_resolves_every_run() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../experiments");
+        let mut seen = 0;
+        for entry in std::fs::read_dir(&root).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                let exp = Experiment::load(&path).unwrap_or_else(|e| panic!("{e:#}"));
+                let runs = exp
+                    .resolve(Path::new("/nonexistent"), 1)
+                    .unwrap_or_else(|e| panic!("{}: {e:#}", path.display()));
+                assert_eq!(
+                    runs.len(),
+                    exp.methods.len() * exp.tasks.len() * exp.seeds.len()
+                );
+                for r in &runs {
+                    assert_eq!(r.config.run.total_env_steps, exp.total_env_steps);
+                    assert_eq!(r.id.split('/').nth(1), Some(r.config.run.env.as_str()));
+                }
+                // The written form reads back as the same experiment (the report reads it).
+                let back: Experiment = toml::from_str(&exp.to_toml()).unwrap();
+                assert_eq!(back, exp);
+                seen += 1;
+            }
+        }
+        assert!(seen >= 3, "found {seen} experiments");
+    }
+}

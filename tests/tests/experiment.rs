@@ -1,0 +1,536 @@
+//! End to end: `selkd experiment run` over real `selkd train` children (stopped by a signal half
+//! way and run again: finished runs are skipped, the stopped one resumes to its budget; SIGTERM
+//! stops with a checkpoint and exits 143; a failed run is reported and the others go on; a locked
+//! run is left alone), its one-line errors for bad experiment files, and `selkd experiment
+//! plan`'s commands and job array, whose commands are run here through bash.
+
+mod common;
+use common::*;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+/// A tiny Pendulum config (the sizes of `small_run`), as a method's config file.
+const TINY: &str = r#"
+[run]
+env = "pendulum"
+seed = 1
+threads = 1
+checkpoint_every = 1000
+
+[algo]
+actors = 2
+critics = 2
+subset = 2
+utd = 1
+batch_size = 64
+hidden = [32, 32]
+warmup_steps = 400
+
+[eval]
+epoch_env_steps = 500
+episodes = 1
+"#;
+
+/// An experiment directory with `tiny.toml` and `exp.toml` (the given experiment text).
+fn setup(tag: &str, experiment: &str) -> (PathBuf, PathBuf) {
+    let root = temp_dir(tag);
+    std::fs::write(root.join("tiny.toml"), TINY).unwrap();
+    let exp = root.join("exp.toml");
+    std::fs::write(&exp, experiment).unwrap();
+    (root, exp)
+}
+
+fn experiment(args: &[&str]) -> Command {
+    let mut c = Command::new(bin("selkd"));
+    c.arg("experiment").args(args);
+    c
+}
+
+/// `inserted` of a run's final checkpoint.
+fn final_inserted(run: &Path) -> Option<u64> {
+    let text = std::fs::read_to_string(run.join("checkpoints/final/state.json")).ok()?;
+    serde_json::from_str::<serde_json::Value>(&text).ok()?["inserted"].as_u64()
+}
+
+const TWO_BY_TWO: &str = r#"
+total_env_steps = 3000
+seeds = [1, 2]
+tasks = ["pendulum"]
+
+[[method]]
+name = "a"
+config = "tiny.toml"
+
+[[method]]
+name = "b"
+config = "tiny.toml"
+set = { "algo.critics" = 3, "algo.subset" = 2 }
+"#;
+
+#[test]
+fn a_stopped_experiment_run_again_skips_finished_runs_and_resumes_the_stopped_one() {
+    let (root, exp) = setup("exp-smoke", TWO_BY_TWO);
+    let dir = root.join("runs");
+    let ids = [
+        "a/pendulum/seed-1",
+        "b/pendulum/seed-1",
+        "a/pendulum/seed-2",
+        "b/pendulum/seed-2",
+    ];
+    let mut child = spawn({
+        let mut c = experiment(&["run"]);
+        c.arg(&exp).arg("--dir").arg(&dir).args(["--jobs", "2"]);
+        c
+    });
+    // Stop once one run has finished and another has a checkpoint but not its budget.
+    let t0 = Instant::now();
+    let finished_before = loop {
+        let finished: Vec<&str> = ids
+            .iter()
+            .copied()
+            .filter(|id| final_inserted(&dir.join(id)).is_some_and(|n| n >= 3000))
+            .collect();
+        let midway = ids
+            .iter()
+            .any(|id| !finished.contains(id) && dir.join(id).join("checkpoints/latest").exists());
+        if !finished.is_empty() && midway {
+            break finished;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(120),
+            "no run finished with another half-way; exited: {:?}",
+            child.try_wait()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let metrics_before: Vec<String> = finished_before
+        .iter()
+        .map(|id| std::fs::read_to_string(dir.join(id).join("metrics.csv")).unwrap())
+        .collect();
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(143), "{stderr}");
+    assert!(stderr.contains("selkd: stopping"), "{stderr}");
+    // Every run that had started holds a checkpoint now.
+    let unfinished: Vec<&str> = ids
+        .iter()
+        .copied()
+        .filter(|id| final_inserted(&dir.join(id)).is_none_or(|n| n < 3000))
+        .collect();
+    assert!(!unfinished.is_empty(), "{stderr}");
+    for id in &unfinished {
+        let d = dir.join(id);
+        if d.exists() {
+            assert!(
+                d.join("checkpoints/latest").exists(),
+                "{id} stopped without a checkpoint:\n{}",
+                std::fs::read_to_string(d.join("logs/selkd.log")).unwrap_or_default()
+            );
+        }
+    }
+
+    let out = run({
+        let mut c = experiment(&["run"]);
+        c.arg(&exp).arg("--dir").arg(&dir).args(["--jobs", "2"]);
+        c
+    });
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let now_finished = ids.len() - unfinished.len();
+    assert!(
+        stderr.contains(&format!("{now_finished} finished (skipped)")),
+        "{stderr}"
+    );
+    for (id, before) in finished_before.iter().zip(&metrics_before) {
+        let after = std::fs::read_to_string(dir.join(id).join("metrics.csv")).unwrap();
+        assert_eq!(&after, before, "{id}: a finished run was trained again");
+    }
+    for id in ids {
+        let d = dir.join(id);
+        assert!(
+            final_inserted(&d).is_some_and(|n| n >= 3000),
+            "{id} did not reach its budget: {:?}\n{}",
+            final_inserted(&d),
+            std::fs::read_to_string(d.join("logs/selkd.log")).unwrap_or_default()
+        );
+        // The child's own output went to its log, not the terminal.
+        assert!(log(&d, "selkd.log").contains("selkd: run"), "{id}");
+    }
+    // A stopped run resumed: its log holds a stop, then the resume.
+    let resumed = unfinished
+        .iter()
+        .filter(|id| dir.join(id).join("checkpoints").exists())
+        .filter(|id| log(&dir.join(id), "learner.log").contains("resumed from"))
+        .count();
+    assert!(resumed >= 1, "no stopped run was resumed: {stderr}");
+    let written = std::fs::read_to_string(dir.join("experiment.toml")).unwrap();
+    assert!(written.contains("total_env_steps = 3000"), "{written}");
+    // Then reported: Table 2 and a curve point, recomputed here from the runs.
+    let out = run({
+        let mut c = experiment(&["report"]);
+        c.arg(&dir).args(["--episodes", "2"]);
+        c
+    });
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    common::report_check::check_report(&dir, "pendulum", &["a", "b"], &[1, 2], 2, 1500.0);
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// Runs `selkd experiment run` on an experiment text; returns (exit code, stderr).
+fn rejected(tag: &str, text: &str) -> (Option<i32>, String, PathBuf) {
+    let (root, exp) = setup(tag, text);
+    let out = run({
+        let mut c = experiment(&["run"]);
+        c.arg(&exp).arg("--dir").arg(root.join("runs"));
+        c
+    });
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+        root,
+    )
+}
+
+const ONE: &str = r#"
+total_env_steps = 1000
+seeds = [1]
+tasks = ["pendulum"]
+"#;
+
+#[test]
+fn bad_experiment_files_get_one_line_errors_before_any_run_starts() {
+    let method = "[[method]]\nname = \"a\"\nconfig = \"tiny.toml\"\n";
+    let cases: Vec<(&str, String, Vec<&str>)> = vec![
+        (
+            "unknown-config",
+            format!("{ONE}[[method]]\nname = \"a\"\nconfig = \"nope.toml\"\n"),
+            vec!["method `a`", "nope.toml", "does not exist"],
+        ),
+        (
+            "unknown-task",
+            format!("{}{method}", ONE.replace("\"pendulum\"", "\"walker\"")),
+            vec!["`walker` is not a known env", "walker2d"],
+        ),
+        (
+            "duplicate-method",
+            format!("{ONE}{method}{method}"),
+            vec!["two methods are named `a`"],
+        ),
+        (
+            "no-seeds",
+            format!("{}{method}", ONE.replace("seeds = [1]", "seeds = []")),
+            vec!["no seeds"],
+        ),
+        ("no-methods", ONE.to_string(), vec!["no methods"]),
+        (
+            "no-tasks",
+            format!(
+                "{}{method}",
+                ONE.replace("tasks = [\"pendulum\"]", "tasks = []")
+            ),
+            vec!["no tasks"],
+        ),
+        (
+            "zero-budget",
+            format!("{}{method}", ONE.replace("1000", "0")),
+            vec!["total_env_steps must be at least 1"],
+        ),
+        (
+            "bad-key",
+            format!("{ONE}{method}set = {{ \"algo.critcs\" = 3 }}\n"),
+            vec!["method `a` on task `pendulum`", "critcs"],
+        ),
+        (
+            "bad-value",
+            format!("{ONE}{method}set = {{ \"algo.subset\" = 9 }}\n"),
+            vec!["method `a`", "algo.subset"],
+        ),
+        (
+            "owned-key",
+            format!("{ONE}[set]\n\"run.seed\" = 4\n{method}"),
+            vec!["`run.seed` is set by the experiment's `seeds`"],
+        ),
+        (
+            "unknown-field",
+            format!("{ONE}budget = 5\n{method}"),
+            vec!["unknown field `budget`"],
+        ),
+    ];
+    for (tag, text, wants) in cases {
+        let (code, stderr, root) = rejected(&format!("exp-bad-{tag}"), &text);
+        assert_eq!(code, Some(2), "{tag}: {stderr}");
+        assert_eq!(
+            stderr.trim().lines().count(),
+            1,
+            "{tag}: one line: {stderr}"
+        );
+        assert!(stderr.starts_with("selkd: error: "), "{tag}: {stderr}");
+        for w in wants {
+            assert!(stderr.contains(w), "{tag}: wanted `{w}` in: {stderr}");
+        }
+        assert!(
+            !root.join("runs").join("a").exists(),
+            "{tag}: a run started"
+        );
+        let _ = std::fs::remove_dir_all(&root);
+    }
+    // Bad flags, on a good file.
+    let (root, exp) = setup("exp-bad-flags", &format!("{ONE}{method}"));
+    for (flags, want) in [
+        (
+            &["--only", "a/pendulum/seed-9"][..],
+            "--only a/pendulum/seed-9: no such run",
+        ),
+        (&["--jobs", "0"][..], "--jobs 0"),
+    ] {
+        let out = run({
+            let mut c = experiment(&["run"]);
+            c.arg(&exp).arg("--dir").arg(root.join("runs")).args(flags);
+            c
+        });
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{flags:?}: {stderr}");
+        assert!(
+            stderr.contains(want),
+            "{flags:?}: wanted `{want}` in: {stderr}"
+        );
+        assert!(
+            !root.join("runs").join("a").exists(),
+            "{flags:?}: a run started"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[test]
+fn an_existing_run_with_another_config_is_named_with_the_keys_that_differ() {
+    let text = format!("{ONE}[[method]]\nname = \"a\"\nconfig = \"tiny.toml\"\n");
+    let (root, exp) = setup("exp-differs", &text);
+    let run_dir = root.join("runs/a/pendulum/seed-1");
+    std::fs::create_dir_all(&run_dir).unwrap();
+    std::fs::write(
+        run_dir.join("config.toml"),
+        TINY.replace("critics = 2", "critics = 3"),
+    )
+    .unwrap();
+    let out = run({
+        let mut c = experiment(&["run"]);
+        c.arg(&exp).arg("--dir").arg(root.join("runs"));
+        c
+    });
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains("run a/pendulum/seed-1 already exists")
+            && stderr.contains("algo.critics (3 there, 2 now)"),
+        "{stderr}"
+    );
+    // run.total_env_steps and run.threads may change (a raised budget, another --jobs).
+    assert!(
+        !stderr.contains("run.threads") && !stderr.contains("total_env_steps"),
+        "{stderr}"
+    );
+    assert!(!run_dir.join("logs").exists(), "the run was started");
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[test]
+fn a_plan_writes_one_command_per_run_and_a_job_array_and_its_commands_finish_the_runs() {
+    let text = r#"
+total_env_steps = 1000
+seeds = [1, 2]
+tasks = ["pendulum"]
+
+[[method]]
+name = "a"
+config = "tiny.toml"
+"#;
+    let (root, exp) = setup("exp-plan", text);
+    let dir = root.join("runs");
+    let out = run({
+        let mut c = experiment(&["plan"]);
+        c.arg(&exp).arg("--dir").arg(&dir).args([
+            "--slurm",
+            "--partition",
+            "gpu",
+            "--time",
+            "02:00:00",
+            "--cpus",
+            "4",
+            "--gpus",
+            "1",
+        ]);
+        c
+    });
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let commands = std::fs::read_to_string(dir.join("commands.txt")).unwrap();
+    let lines: Vec<&str> = commands.lines().collect();
+    assert_eq!(lines.len(), 2, "{commands}");
+    for (line, id) in lines.iter().zip(["a/pendulum/seed-1", "a/pendulum/seed-2"]) {
+        assert!(
+            line.contains(" experiment run ") && line.ends_with(&format!("--only {id}")),
+            "{line}"
+        );
+    }
+    let sbatch = std::fs::read_to_string(dir.join("slurm.sbatch")).unwrap();
+    for want in [
+        "#SBATCH --array=0-1\n",
+        "#SBATCH --partition=gpu\n",
+        "#SBATCH --time=02:00:00\n",
+        "#SBATCH --cpus-per-task=4\n",
+        "#SBATCH --gres=gpu:1\n",
+        "SLURM_ARRAY_TASK_ID + 1",
+        "commands.txt",
+    ] {
+        assert!(sbatch.contains(want), "wanted {want:?} in:\n{sbatch}");
+    }
+    assert!(sbatch.starts_with("#!/bin/bash\n"), "{sbatch}");
+    // What an array task does, line by line, here.
+    for line in &lines {
+        let out = run({
+            let mut c = Command::new("bash");
+            c.args(["-c", line]);
+            c
+        });
+        assert!(
+            out.status.success(),
+            "{line}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    for seed in [1, 2] {
+        let d = dir.join(format!("a/pendulum/seed-{seed}"));
+        assert!(
+            final_inserted(&d).is_some_and(|n| n >= 1000),
+            "seed {seed}: {:?}\n{}",
+            final_inserted(&d),
+            log(&d, "selkd.log")
+        );
+    }
+    // Run again (a resubmitted array): nothing left to do.
+    let out = run({
+        let mut c = Command::new("bash");
+        c.args(["-c", lines[0]]);
+        c
+    });
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && stderr.contains("1 finished (skipped)"),
+        "{stderr}"
+    );
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[test]
+fn a_failed_run_is_reported_with_its_log_and_the_others_go_on() {
+    let text = format!(
+        "{}[[method]]\nname = \"a\"\nconfig = \"tiny.toml\"\n",
+        ONE.replace("seeds = [1]", "seeds = [1, 2]")
+    );
+    let (root, exp) = setup("exp-failed", &text);
+    let dir = root.join("runs");
+    // A checkpoint that names itself but holds no model: resuming from it fails in the learner.
+    let broken = dir.join("a/pendulum/seed-1/checkpoints");
+    std::fs::create_dir_all(broken.join("step-5")).unwrap();
+    std::fs::write(broken.join("step-5/state.json"), "{\"inserted\": 5}").unwrap();
+    std::fs::write(broken.join("latest"), "step-5\n").unwrap();
+    let out = run({
+        let mut c = experiment(&["run"]);
+        c.arg(&exp).arg("--dir").arg(&dir).args(["--jobs", "1"]);
+        c
+    });
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("selkd: run a/pendulum/seed-1 failed")
+            && stderr.contains("a/pendulum/seed-1/logs/selkd.log")
+            && stderr.contains("1 failed"),
+        "{stderr}"
+    );
+    let other = dir.join("a/pendulum/seed-2");
+    assert!(
+        final_inserted(&other).is_some_and(|n| n >= 1000),
+        "the other run did not go on: {stderr}\n{}",
+        log(&other, "selkd.log")
+    );
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[test]
+fn a_run_locked_by_another_selkd_is_left_alone() {
+    use std::os::fd::AsRawFd;
+    let text = format!("{ONE}[[method]]\nname = \"a\"\nconfig = \"tiny.toml\"\n");
+    let (root, exp) = setup("exp-locked", &text);
+    let run_dir = root.join("runs/a/pendulum/seed-1");
+    std::fs::create_dir_all(&run_dir).unwrap();
+    // What another `selkd experiment run` training this run holds.
+    let lock = std::fs::File::create(run_dir.join(".selkd.lock")).unwrap();
+    assert_eq!(unsafe { libc::flock(lock.as_raw_fd(), libc::LOCK_EX) }, 0);
+    let out = run({
+        let mut c = experiment(&["run"]);
+        c.arg(&exp).arg("--dir").arg(root.join("runs"));
+        c
+    });
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("run a/pendulum/seed-1 is being trained by another selkd"),
+        "{stderr}"
+    );
+    assert!(
+        !run_dir.join("logs").exists(),
+        "it was started anyway: {stderr}"
+    );
+    drop(lock);
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[test]
+fn sigterm_stops_every_running_run_with_a_checkpoint_and_exits_143() {
+    let text = r#"
+total_env_steps = 100000
+seeds = [1]
+tasks = ["pendulum"]
+
+[[method]]
+name = "a"
+config = "tiny.toml"
+"#;
+    let (root, exp) = setup("exp-sigterm", text);
+    let dir = root.join("runs");
+    let run_dir = dir.join("a/pendulum/seed-1");
+    let mut child = spawn({
+        let mut c = experiment(&["run"]);
+        c.arg(&exp).arg("--dir").arg(&dir);
+        c
+    });
+    let t0 = Instant::now();
+    while log(&run_dir, "progress.jsonl").is_empty() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "the run never started: {:?}",
+            child.try_wait()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(143), "{stderr}");
+    let inserted = final_inserted(&run_dir);
+    assert!(
+        inserted.is_some_and(|n| n < 100000),
+        "no final checkpoint below the budget: {inserted:?}\n{}",
+        log(&run_dir, "selkd.log")
+    );
+    assert!(stderr.contains("1 stopped"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&root);
+}
