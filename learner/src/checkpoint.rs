@@ -87,10 +87,65 @@ pub fn save(
     }
     std::fs::write(tmp.join("state.json"), serde_json::to_string_pretty(state)?)
         .context("writing state.json")?;
-    let _ = std::fs::remove_dir_all(dir);
-    std::fs::rename(&tmp, dir)
-        .with_context(|| format!("moving checkpoint into {}", dir.display()))?;
+    for f in ["model.safetensors", "replay.safetensors", "state.json"] {
+        if tmp.join(f).exists() {
+            fsync(&tmp.join(f))?;
+        }
+    }
+    fsync(&tmp)?;
+    replace_dir(&tmp, dir)?;
+    if let Some(parent) = dir.parent() {
+        fsync(parent)?;
+    }
     Ok(())
+}
+
+/// Puts directory `new` in the place of `dir` in one step: a crash leaves the old checkpoint
+/// or the new one, never neither (Linux `renameat2(RENAME_EXCHANGE)` swaps the two; the old one,
+/// now at `new`, is then removed).
+fn replace_dir(new: &Path, dir: &Path) -> Result<()> {
+    use std::os::unix::ffi::OsStrExt;
+    let moving = || format!("moving checkpoint into {}", dir.display());
+    if !dir.exists() {
+        return std::fs::rename(new, dir).with_context(moving);
+    }
+    let c = |p: &Path| std::ffi::CString::new(p.as_os_str().as_bytes()).expect("no NUL in paths");
+    let (a, b) = (c(new), c(dir));
+    let swapped = unsafe {
+        libc::renameat2(
+            libc::AT_FDCWD,
+            a.as_ptr(),
+            libc::AT_FDCWD,
+            b.as_ptr(),
+            libc::RENAME_EXCHANGE,
+        )
+    } == 0;
+    if swapped {
+        let _ = std::fs::remove_dir_all(new);
+        return Ok(());
+    }
+    // A filesystem without RENAME_EXCHANGE: move the old one aside first.
+    let old = dir.with_extension("old");
+    let _ = std::fs::remove_dir_all(&old);
+    std::fs::rename(dir, &old).with_context(moving)?;
+    std::fs::rename(new, dir).with_context(moving)?;
+    let _ = std::fs::remove_dir_all(&old);
+    Ok(())
+}
+
+/// Writes `text` to `path` through a temporary file renamed over it (never half a file).
+pub fn write_atomically(path: &Path, text: &str) -> Result<()> {
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, text).with_context(|| format!("writing {}", tmp.display()))?;
+    fsync(&tmp)?;
+    std::fs::rename(&tmp, path).with_context(|| format!("replacing {}", path.display()))?;
+    Ok(())
+}
+
+fn fsync(path: &Path) -> Result<()> {
+    std::fs::File::open(path)
+        .and_then(|f| f.sync_all())
+        .with_context(|| format!("syncing {}", path.display()))
 }
 
 /// Loads a checkpoint into an already built `selkd` (same config) and, when it holds one, the replay buffer.
@@ -237,4 +292,41 @@ pub fn load_actor(path: &Path, actor: Option<usize>) -> Result<LoadedActor> {
         actors: k,
         config: state.map(|s| s.config),
     })
+}
+
+#[cfg(test)]
+mod replace_tests {
+    use super::*;
+
+    /// A checkpoint written over an older one replaces it whole, and leaves no temporary
+    /// directory behind; `latest` is replaced the same way.
+    #[test]
+    fn a_new_checkpoint_replaces_the_old_one_whole() {
+        let root = std::env::temp_dir().join(format!("selkd-replace-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let (dir, new) = (root.join("final"), root.join("final.partial"));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("state.json"), "old").unwrap();
+        std::fs::write(dir.join("replay.safetensors"), "old replay").unwrap();
+        std::fs::create_dir_all(&new).unwrap();
+        std::fs::write(new.join("state.json"), "new").unwrap();
+        replace_dir(&new, &dir).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(dir.join("state.json")).unwrap(),
+            "new"
+        );
+        assert!(
+            !dir.join("replay.safetensors").exists(),
+            "nothing of the old one is left"
+        );
+        assert!(!new.exists() && !root.join("final.old").exists());
+        write_atomically(&root.join("latest"), "final\n").unwrap();
+        write_atomically(&root.join("latest"), "step-5\n").unwrap();
+        assert_eq!(
+            std::fs::read_to_string(root.join("latest")).unwrap(),
+            "step-5\n"
+        );
+        assert!(!root.join("latest.tmp").exists());
+        let _ = std::fs::remove_dir_all(&root);
+    }
 }

@@ -478,6 +478,15 @@ mod tests {
         h
     }
 
+    /// Q ≡ 0: the critics' last layer zeroed, so only a KD term can move an actor (with α = 0).
+    fn silence_critics(s: &Selkd) {
+        tch::no_grad(|| {
+            let last = s.critics.layers.last().unwrap();
+            let _ = last.weight.shallow_clone().zero_();
+            let _ = last.bias.shallow_clone().zero_();
+        });
+    }
+
     fn row(t: &Tensor, g: i64, b: i64) -> Vec<f32> {
         Vec::<f32>::try_from(t.get(g).get(b).contiguous()).unwrap()
     }
@@ -715,11 +724,7 @@ mod tests {
             ..small(3, 2, 2)
         };
         let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 2);
-        tch::no_grad(|| {
-            let last = s.critics.layers.last().unwrap();
-            let _ = last.weight.shallow_clone().zero_();
-            let _ = last.bias.shallow_clone().zero_();
-        });
+        silence_critics(&s);
         let mut rb = filled_replay(3, 2, 100);
         let best_before = s.actor_weights(2);
         let mut stats = RoundStats::default();
@@ -817,11 +822,7 @@ mod tests {
             ..small(3, 2, 2)
         };
         let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 2);
-        tch::no_grad(|| {
-            let last = s.critics.layers.last().unwrap();
-            let _ = last.weight.shallow_clone().zero_();
-            let _ = last.bias.shallow_clone().zero_();
-        });
+        silence_critics(&s);
         let mut rb = filled_replay(3, 2, 100);
         let before: Vec<Vec<f32>> = (0..3).map(|i| s.actor_weights(i)).collect();
         let mut stats = RoundStats::default();
@@ -851,11 +852,7 @@ mod tests {
             ..small(2, 4, 2)
         };
         let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 2);
-        tch::no_grad(|| {
-            let last = s.critics.layers.last().unwrap();
-            let _ = last.weight.shallow_clone().zero_();
-            let _ = last.bias.shallow_clone().zero_();
-        });
+        silence_critics(&s);
         let mut rb = filled_replay(3, 2, 100);
         let before = [s.actor_weights(0), s.actor_weights(1)];
         let mut stats = RoundStats::default();

@@ -307,7 +307,11 @@ impl Learner {
                 && self.inserted >= self.next_checkpoint
                 && self.inserted < self.cfg.run.total_env_steps
             {
-                self.checkpoint(&format!("step-{}", self.inserted))?;
+                // A periodic checkpoint that fails (a full disk) is not the end of the run: the
+                // next one tries again. Only the final one must succeed.
+                if let Err(e) = self.checkpoint(&format!("step-{}", self.inserted)) {
+                    tracing::error!("checkpoint at {} env steps failed: {e:#}; training goes on, the next checkpoint tries again", self.inserted);
+                }
                 self.next_checkpoint += self.cfg.run.checkpoint_every;
             }
             let budget_reached = self.inserted >= self.cfg.run.total_env_steps;
@@ -754,9 +758,9 @@ impl Learner {
         };
         let replay = self.cfg.run.checkpoint_replay.then_some(&mut self.replay);
         checkpoint::save(&dir, &self.selkd, replay, &state)?;
-        std::fs::write(
-            self.run_dir.join("checkpoints").join("latest"),
-            format!("{name}\n"),
+        checkpoint::write_atomically(
+            &self.run_dir.join("checkpoints").join("latest"),
+            &format!("{name}\n"),
         )?;
         tracing::info!(
             env_steps = self.inserted,

@@ -547,6 +547,18 @@ mod tests {
         let _ = std::fs::remove_dir_all(&d);
     }
 
+    /// The report's error for `d`, as the user reads it.
+    fn refusal(d: &Path) -> String {
+        format!(
+            "{:#}",
+            run(&ReportArgs {
+                dir: d.to_path_buf(),
+                episodes: 2
+            })
+            .unwrap_err()
+        )
+    }
+
     #[test]
     fn a_method_whose_seeds_differ_in_config_is_refused() {
         let d = std::env::temp_dir().join(format!("selkd-report-cfg-{}", std::process::id()));
@@ -563,14 +575,7 @@ mod tests {
             METRICS,
             Some(2000),
         );
-        let e = format!(
-            "{:#}",
-            run(&ReportArgs {
-                dir: d.clone(),
-                episodes: 2
-            })
-            .unwrap_err()
-        );
+        let e = refusal(&d);
         assert!(
             e.contains("different configs") && e.contains("seed-1") && e.contains("seed-2"),
             "{e}"
@@ -594,14 +599,7 @@ mod tests {
             METRICS,
             Some(2000),
         );
-        let e = format!(
-            "{:#}",
-            run(&ReportArgs {
-                dir: d.clone(),
-                episodes: 2
-            })
-            .unwrap_err()
-        );
+        let e = refusal(&d);
         assert!(
             e.contains("different envs") && e.contains("(pendulum") && e.contains("(hopper"),
             "{e}"
