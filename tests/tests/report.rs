@@ -6,7 +6,6 @@
 mod common;
 use common::report_check::check_report;
 use common::*;
-use std::path::Path;
 
 const BUDGET: u64 = 2000;
 
