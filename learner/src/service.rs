@@ -771,8 +771,8 @@ impl Learner {
     }
 }
 
-/// Keeps the header and the rows of epochs 1..=`epochs` of `metrics.csv` (written to a temporary
-/// file, then renamed over it, so a crash leaves the old or the new file, never half of one).
+/// Keeps the header and the rows of epochs 1..=`epochs` of `metrics.csv` (replaced atomically, so
+/// a crash leaves the old or the new file, never half of one).
 fn truncate_metrics(path: &Path, epochs: u64) -> Result<()> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
@@ -784,10 +784,7 @@ fn truncate_metrics(path: &Path, epochs: u64) -> Result<()> {
             kept.push('\n');
         }
     }
-    let tmp = path.with_extension("csv.tmp");
-    std::fs::write(&tmp, kept).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("replacing {}", path.display()))?;
-    Ok(())
+    checkpoint::write_atomically(path, &kept)
 }
 
 fn same_control(a: &Control, b: &Control) -> bool {
