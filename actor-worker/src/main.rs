@@ -10,7 +10,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use selkd_policy::{evaluation, Actor, ActorLayout};
 use selkd_protocol::{
-    services, Control, Name, Report, ReportKind, Services, TransitionHeader, TransitionRow,
+    services, Control, CursorHeader, Name, Report, ReportKind, Services, TransitionHeader, TransitionRow,
     PROTOCOL_VERSION,
 };
 use std::time::{Duration, Instant};
@@ -72,13 +72,37 @@ fn main() {
 #[error("{0}")]
 struct CannotJoin(String);
 
-/// Seeds derived from (run seed, worker, generation, purpose) so every stream differs.
-fn seed_for(seed: u64, worker: usize, generation: u32, purpose: u64) -> u64 {
-    let mut rng = Pcg64::seed_from_u64(seed ^ 0x5e1d_0000_0000_0000);
-    let base: u64 = rng.gen();
-    base ^ ((worker as u64) << 40)
-        ^ ((generation as u64) << 24)
-        ^ purpose.wrapping_mul(0x9e37_79b9_7f4a_7c15)
+/// One 64-bit seed from several parts (SplitMix64's finaliser over each in turn): nearby inputs
+/// give unrelated seeds.
+fn mix(parts: &[u64]) -> u64 {
+    let mut h = 0x5e1d_0000_0000_0000u64;
+    for &p in parts {
+        h = (h ^ p).wrapping_add(0x9e37_79b9_7f4a_7c15);
+        h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        h ^= h >> 31;
+    }
+    h
+}
+
+/// The reset seed of this worker's `episode`-th episode. Seeds follow from where a step sits in
+/// the rollout, never from when or in which process it runs: a worker that continues from its
+/// cursor (after a restart, or in a resumed run) takes exactly the steps its predecessor would have.
+fn episode_seed(seed: u64, worker: usize, episode: u64) -> u64 {
+    mix(&[seed, worker as u64, episode, 2])
+}
+
+/// The random numbers of one step's action (warm-up draw or policy sample).
+fn step_rng(seed: u64, worker: usize, episode: u64, step: u64) -> Pcg64 {
+    Pcg64::seed_from_u64(mix(&[seed, worker as u64, episode, step, 1]))
+}
+
+/// Random for each process: tells the learner this process from an earlier (or a duplicate) one.
+fn new_incarnation() -> u64 {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64);
+    mix(&[std::process::id() as u64, nanos])
 }
 
 fn run(args: &Args) -> Result<()> {
@@ -185,10 +209,12 @@ fn run(args: &Args) -> Result<()> {
         }
         std::thread::sleep(Duration::from_millis(5));
     }
+    let incarnation = new_incarnation();
     let hello = |kind, version, epoch, episodes, mean_return, success_rate| Report {
         kind,
         worker: args.worker as u32,
         generation: args.generation,
+        incarnation,
         protocol_version: PROTOCOL_VERSION,
         env: Name::new(spec.id),
         env_options: options_fingerprint,
@@ -200,38 +226,73 @@ fn run(args: &Args) -> Result<()> {
         mean_return,
         success_rate,
     };
-    reports.send_copy(hello(
-        ReportKind::Hello,
-        weights_version,
-        0,
-        0,
-        f64::NAN,
-        f64::NAN,
-    ))?;
-    to_learner.notify()?;
+
+    // Say hello and wait for the cursor: where the learner's record of this actor's rollout ends.
+    let cursor_sub = services::cursor(&node, &svc, args.worker)
+        .map_err(ctx("cursor"))?
+        .subscriber_builder()
+        .create()?;
+    let deadline = Instant::now() + Duration::from_secs_f64(args.connect_timeout);
+    let mut last_hello: Option<Instant> = None;
+    let (cursor, recorded_actions) = loop {
+        // Hello again now and then: a learner that was busy (or just started) may have missed it.
+        if last_hello.is_none_or(|t| t.elapsed() > Duration::from_secs(1)) {
+            reports.send_copy(hello(ReportKind::Hello, weights_version, 0, 0, f64::NAN, f64::NAN))?;
+            to_learner.notify()?;
+            last_hello = Some(Instant::now());
+        }
+        if let Some(c) = latest_cursor(&cursor_sub, incarnation)? {
+            break c;
+        }
+        if Instant::now() > deadline {
+            bail!(
+                "the learner of run `{}` did not answer actor {}'s hello within {} s",
+                args.run_id,
+                args.worker,
+                args.connect_timeout
+            );
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    let seed = control.seed;
+    let mut sent = cursor.sent;
+    let mut episode = cursor.episode;
+    let mut t = cursor.step;
+    // Replay the episode's recorded actions on its seed: the env ends up exactly where the last
+    // transition the learner has left it (the env is deterministic given seed and actions).
+    let mut obs = env.reset(Some(episode_seed(seed, args.worker, episode)));
+    let mut episode_return = 0.0f64;
+    if recorded_actions.len() as u64 != t * spec.act_dim as u64 {
+        return Err(CannotJoin(format!(
+            "the learner's cursor for actor {} holds {} action values for {t} steps of {}",
+            args.worker,
+            recorded_actions.len(),
+            spec.act_dim
+        ))
+        .into());
+    }
+    for (i, action) in recorded_actions.chunks(spec.act_dim.max(1)).enumerate() {
+        let step = env.step(action);
+        if step.terminated || step.truncated {
+            return Err(CannotJoin(format!(
+                "replaying episode {episode}'s {t} recorded steps ended it at step {i}: the env does not repeat its episodes (is this actor-worker built from the same source as the learner?)"
+            ))
+            .into());
+        }
+        episode_return += step.reward;
+        obs = step.obs;
+    }
     tracing::info!(
         worker = args.worker,
         generation = args.generation,
         weights_version,
+        sent,
+        episode,
+        step = t,
         "joined run {}",
         args.run_id
     );
 
-    let seed = control.seed;
-    // Counted from what the learner has already received from this actor, so budgets carry over restarts.
-    let mut sent = control.received[args.worker];
-    // A worker that joins a run in progress (restarted, or the run resumed from a checkpoint)
-    // starts env and action streams of its own, fixed by where it joins: it never replays the
-    // episodes the run began with.
-    let stream = |purpose| {
-        seed_for(seed, args.worker, args.generation, purpose)
-            .wrapping_add(sent.wrapping_mul(0xd1b5_4a32_d192_ed03))
-    };
-    let mut action_rng = Pcg64::seed_from_u64(stream(1));
-    let mut obs = env.reset(Some(stream(2)));
-    let mut episode = 0u64;
-    let mut t = 0u64;
-    let mut episode_return = 0.0f64;
     // A restarted worker redoes the current evaluation: its predecessor may have died before reporting
     // it (the learner ignores an epoch it already has).
     let mut evaluated = 0u64;
@@ -246,6 +307,15 @@ fn run(args: &Args) -> Result<()> {
         }
         if control.stop != 0 {
             tracing::info!(worker = args.worker, sent, "learner asked to stop");
+            return Ok(());
+        }
+        if let Some(other) = newer_cursor(&cursor_sub, incarnation)? {
+            tracing::warn!(
+                worker = args.worker,
+                sent,
+                "another process (incarnation {other:x}) took over actor {}; this one stops",
+                args.worker
+            );
             return Ok(());
         }
         let policy = actor.as_ref().expect("weights received above");
@@ -274,6 +344,7 @@ fn run(args: &Args) -> Result<()> {
         }
         if sent < control.budget[args.worker] && fresh {
             let warmup = sent < control.warmup_steps;
+            let mut action_rng = step_rng(seed, args.worker, episode, t);
             let action: Vec<f32> = if warmup {
                 (0..spec.act_dim)
                     .map(|_| action_rng.gen_range(-1.0f32..=1.0))
@@ -301,6 +372,7 @@ fn run(args: &Args) -> Result<()> {
             *sample.user_header_mut() = TransitionHeader {
                 worker: args.worker as u32,
                 generation: args.generation,
+                incarnation,
                 episode,
                 step: t,
                 policy_version: if warmup { 0 } else { weights_version },
@@ -313,8 +385,8 @@ fn run(args: &Args) -> Result<()> {
             sent += 1;
             t += 1;
             if done {
-                obs = env.reset(None);
                 episode += 1;
+                obs = env.reset(Some(episode_seed(seed, args.worker, episode)));
                 t = 0;
                 episode_return = 0.0;
             } else {
@@ -331,6 +403,34 @@ fn run(args: &Args) -> Result<()> {
             }
         }
     }
+}
+
+/// The newest cursor the learner published for `incarnation`, with its actions.
+fn latest_cursor(
+    sub: &iceoryx2::port::subscriber::Subscriber<ipc::Service, [f32], CursorHeader>,
+    incarnation: u64,
+) -> Result<Option<(CursorHeader, Vec<f32>)>> {
+    let mut found = None;
+    while let Some(s) = sub.receive()? {
+        if s.user_header().incarnation == incarnation {
+            found = Some((*s.user_header(), s.payload().to_vec()));
+        }
+    }
+    Ok(found)
+}
+
+/// The incarnation of a cursor published for another process of this actor, if any: the learner
+/// has handed the actor to it.
+fn newer_cursor(
+    sub: &iceoryx2::port::subscriber::Subscriber<ipc::Service, [f32], CursorHeader>,
+    incarnation: u64,
+) -> Result<Option<u64>> {
+    let mut other = None;
+    while let Some(s) = sub.receive()? {
+        let i = s.user_header().incarnation;
+        other = (i != incarnation).then_some(i);
+    }
+    Ok(other)
 }
 
 /// Whether a live `learner` node exists (dead ones are cleaned up by iceoryx2 as it lists them).

@@ -40,12 +40,68 @@ pub struct TrainArgs {
     /// Run directory (default: runs/<env>-<unix time>).
     #[arg(long)]
     run_dir: Option<PathBuf>,
-    /// Continue from a checkpoint directory, e.g. runs/X/checkpoints/final (raise run.total_env_steps to train further).
+    /// Continue a run: its directory (from its latest checkpoint), or a checkpoint directory such as runs/X/checkpoints/final (raise run.total_env_steps to train further).
     #[arg(long)]
     resume: Option<PathBuf>,
-    /// Give up on a worker after this many restarts.
+    /// Give up on a worker that died more than this many times within --restart-window.
     #[arg(long, default_value_t = 20)]
-    max_restarts: u32,
+    max_restarts: usize,
+    /// The window (seconds) in which --max-restarts counts a worker's deaths.
+    #[arg(long, default_value_t = 600.0)]
+    restart_window: f64,
+}
+
+/// A worker that dies again soon after its start waits this long before the next, doubling up to
+/// `MAX_BACKOFF`; one that lived `STEADY` or longer restarts at once.
+const FIRST_BACKOFF: Duration = Duration::from_millis(500);
+const MAX_BACKOFF: Duration = Duration::from_secs(10);
+const STEADY: Duration = Duration::from_secs(30);
+
+/// One worker slot's restart history.
+struct Slot {
+    generation: u32,
+    pid: Option<u32>,
+    started: Instant,
+    deaths: std::collections::VecDeque<Instant>,
+    backoff: Duration,
+}
+
+impl Slot {
+    fn new(pid: u32) -> Self {
+        Self {
+            generation: 0,
+            pid: Some(pid),
+            started: Instant::now(),
+            deaths: Default::default(),
+            backoff: Duration::ZERO,
+        }
+    }
+
+    /// Records a death; returns how long to wait before the restart, or `None` when the worker
+    /// died more than `max` times within `window`.
+    fn died(&mut self, max: usize, window: Duration) -> Option<Duration> {
+        let now = Instant::now();
+        self.pid = None;
+        self.deaths.push_back(now);
+        while self.deaths.front().is_some_and(|&t| now - t > window) {
+            self.deaths.pop_front();
+        }
+        if self.deaths.len() > max {
+            return None;
+        }
+        self.backoff = if now - self.started >= STEADY {
+            Duration::ZERO
+        } else if self.backoff.is_zero() {
+            if self.deaths.len() >= 2 {
+                FIRST_BACKOFF
+            } else {
+                Duration::ZERO
+            }
+        } else {
+            (self.backoff * 2).min(MAX_BACKOFF)
+        };
+        Some(self.backoff)
+    }
 }
 
 enum Event {
@@ -57,13 +113,15 @@ enum Event {
         signal: Option<i32>,
     },
     LearnerExited(std::process::ExitStatus),
+    /// The learner reports a worker it waits on as silent for `run.worker_timeout`.
+    Stalled { worker: usize, silent_s: f64 },
+    /// A restart's back-off is over.
+    Restart { worker: usize, generation: u32 },
 }
 
-pub fn run(args: TrainArgs) -> Result<i32> {
+pub fn run(mut args: TrainArgs) -> Result<i32> {
     if let Some(r) = &args.resume {
-        if !r.join("state.json").exists() {
-            bail!("--resume {}: not a checkpoint directory (no state.json); pick one under RUN/checkpoints/", r.display());
-        }
+        args.resume = Some(resolve_resume(r)?);
     }
     // A resumed run keeps the checkpoint's config unless a --config is given; --set applies on top.
     let text = match (&args.config, &args.resume) {
@@ -150,6 +208,44 @@ pub fn run(args: TrainArgs) -> Result<i32> {
     ))
 }
 
+/// The checkpoint `--resume` names: a checkpoint directory, or a run directory (its latest one).
+fn resolve_resume(r: &Path) -> Result<PathBuf> {
+    if r.join("state.json").exists() {
+        return Ok(r.to_path_buf());
+    }
+    let latest = r.join("checkpoints").join("latest");
+    if let Ok(name) = std::fs::read_to_string(&latest) {
+        let dir = r.join("checkpoints").join(name.trim());
+        if dir.join("state.json").exists() {
+            return Ok(dir);
+        }
+        bail!(
+            "--resume {}: {} names checkpoint `{}`, which is missing; pick one under {}",
+            r.display(),
+            latest.display(),
+            name.trim(),
+            r.join("checkpoints").display()
+        );
+    }
+    bail!(
+        "--resume {}: neither a checkpoint directory (no state.json) nor a run directory with checkpoints; pick RUN or one under RUN/checkpoints/",
+        r.display()
+    )
+}
+
+/// Children die with the launcher, even when it is SIGKILLed: an orphaned learner would go on
+/// writing into a run directory that a resumed run then shares.
+fn die_with_parent(c: &mut Command) {
+    unsafe {
+        c.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+}
+
 /// The config a checkpoint was trained with, as TOML.
 fn checkpoint_config(checkpoint: &Path) -> Result<String> {
     let path = checkpoint.join("state.json");
@@ -195,7 +291,9 @@ fn spawn_worker(
 ) -> Result<u32> {
     let log = log_file(run_dir, &format!("worker-{worker}.log"))?;
     let env_options = serde_json::to_string(&cfg.env_options)?;
-    let mut child: Child = Command::new(bin)
+    let mut cmd = Command::new(bin);
+    die_with_parent(&mut cmd);
+    let mut child: Child = cmd
         .args([
             "--run-id",
             run_id,
@@ -242,6 +340,7 @@ async fn supervise(
 ) -> Result<i32> {
     let (tx, mut rx) = mpsc::unbounded_channel::<Event>();
     let mut learner_cmd = Command::new(learner_bin);
+    die_with_parent(&mut learner_cmd);
     learner_cmd
         .arg("--config")
         .arg(run_dir.join("config.toml"))
@@ -271,6 +370,13 @@ async fn supervise(
                     if let Ok(v) = serde_json::from_str(json) {
                         let _ = tx.send(Event::Progress(v));
                     }
+                } else if let Some(json) = line.strip_prefix("STALLED ") {
+                    if let Ok(v) = serde_json::from_str::<serde_json::Value>(json) {
+                        if let Some(worker) = v["worker"].as_u64() {
+                            let silent_s = v["silent_s"].as_f64().unwrap_or(0.0);
+                            let _ = tx.send(Event::Stalled { worker: worker as usize, silent_s });
+                        }
+                    }
                 }
             }
         });
@@ -282,10 +388,10 @@ async fn supervise(
     }
 
     let k = cfg.algo.actors;
-    let mut generation = vec![0u32; k];
-    let mut pids = (0..k)
-        .map(|w| spawn_worker(worker_bin, run_dir, run_id, cfg, w, 0, &tx))
-        .collect::<Result<Vec<u32>>>()?;
+    let mut slots = (0..k)
+        .map(|w| spawn_worker(worker_bin, run_dir, run_id, cfg, w, 0, &tx).map(Slot::new))
+        .collect::<Result<Vec<Slot>>>()?;
+    let window = Duration::from_secs_f64(args.restart_window.max(0.0));
     let tty = std::io::stderr().is_terminal();
     let started = Instant::now();
     let mut last_line = Instant::now() - Duration::from_secs(60);
@@ -316,9 +422,10 @@ async fn supervise(
                     }
                 }
                 Some(Event::WorkerExited { worker, generation: g, code, signal }) => {
-                    if g != generation[worker] || stopping {
+                    if g != slots[worker].generation || stopping {
                         continue;
                     }
+                    slots[worker].pid = None;
                     if code == Some(0) {
                         continue; // the learner told it to stop
                     }
@@ -328,16 +435,38 @@ async fn supervise(
                         unsafe { libc::kill(learner_pid, libc::SIGTERM) };
                         continue;
                     }
-                    if generation[worker] >= args.max_restarts {
-                        failure = Some(format!("worker {worker} died {} times; giving up", generation[worker] + 1));
+                    let Some(wait) = slots[worker].died(args.max_restarts, window) else {
+                        failure = Some(format!("worker {worker} died {} times within {:.0} s (--max-restarts {}, --restart-window {}); giving up; see {}", slots[worker].deaths.len(), args.restart_window, args.max_restarts, args.restart_window, run_dir.join("logs").join(format!("worker-{worker}.log")).display()));
                         stopping = true;
                         unsafe { libc::kill(learner_pid, libc::SIGTERM) };
                         continue;
-                    }
-                    generation[worker] += 1;
+                    };
+                    slots[worker].generation += 1;
+                    let generation = slots[worker].generation;
                     let why = match (code, signal) { (_, Some(s)) => format!("signal {s}"), (Some(c), _) => format!("exit code {c}"), _ => "unknown".into() };
-                    say!("{}selkd: worker {worker} died ({why}); restarting it (generation {})", if tty { "\n" } else { "" }, generation[worker]);
-                    pids[worker] = spawn_worker(worker_bin, run_dir, run_id, cfg, worker, generation[worker], &tx)?;
+                    let after = if wait.is_zero() { String::new() } else { format!(" in {:.1} s", wait.as_secs_f64()) };
+                    say!("{}selkd: worker {worker} died ({why}); restarting it{after} (generation {generation})", if tty { "\n" } else { "" });
+                    let tx = tx.clone();
+                    tokio::spawn(async move {
+                        tokio::time::sleep(wait).await;
+                        let _ = tx.send(Event::Restart { worker, generation });
+                    });
+                }
+                Some(Event::Restart { worker, generation }) => {
+                    if stopping || generation != slots[worker].generation {
+                        continue;
+                    }
+                    let pid = spawn_worker(worker_bin, run_dir, run_id, cfg, worker, generation, &tx)?;
+                    slots[worker].pid = Some(pid);
+                    slots[worker].started = Instant::now();
+                }
+                Some(Event::Stalled { worker, silent_s }) => {
+                    // Only a running worker is killed (a dead one's pid may already be another
+                    // process's); its death restarts it as any other.
+                    if let (false, Some(pid)) = (stopping, slots.get(worker).and_then(|s| s.pid)) {
+                        say!("{}selkd: worker {worker} sent nothing for {silent_s:.0} s while the run waited on it (run.worker_timeout = {}); killing it", if tty { "\n" } else { "" }, cfg.run.worker_timeout);
+                        unsafe { libc::kill(pid as i32, libc::SIGKILL) };
+                    }
                 }
                 Some(Event::LearnerExited(status)) => break status,
             }
@@ -348,6 +477,7 @@ async fn supervise(
     }
     // Workers leave on the learner's stop order; any still running after a grace period are killed.
     let deadline = Instant::now() + Duration::from_secs(5);
+    let pids: Vec<u32> = slots.iter().filter_map(|s| s.pid).collect();
     while Instant::now() < deadline && pids.iter().any(|&p| alive(p)) {
         tokio::time::sleep(Duration::from_millis(100)).await;
     }

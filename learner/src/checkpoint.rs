@@ -8,7 +8,8 @@
 use crate::config::Config;
 use crate::ranking::Ranking;
 use crate::replay::ReplayBuffer;
-use crate::selkd::Selkd;
+use crate::rollout::{Pending, Rollout};
+use crate::selkd::{RoundStats, Selkd};
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -25,6 +26,22 @@ pub struct TrainingState {
     pub adam_steps: [i64; 3],
     /// Transitions received from each actor.
     pub received: Vec<u64>,
+    /// Where each actor's rollout stands: the resumed run's workers continue from it exactly.
+    /// (Absent in older checkpoints: their workers start new episodes.)
+    #[serde(default)]
+    pub rollouts: Vec<Rollout>,
+    /// Sync mode: transitions received but not yet stored (their round was incomplete).
+    #[serde(default)]
+    pub pending: Vec<Vec<Pending>>,
+    /// What the last round measured: the next metrics row reports it.
+    #[serde(default)]
+    pub last_round: Option<LastRound>,
+    /// Transitions dropped so far: non-finite, malformed, stale.
+    #[serde(default)]
+    pub dropped: [u64; 3],
+    /// Policy lag of the transitions received so far: sum, count, max.
+    #[serde(default)]
+    pub policy_lag: (f64, u64, u64),
     /// Transitions stored, all actors.
     pub inserted: u64,
     /// Sync mode: completed lockstep rounds (steps per actor).
@@ -41,6 +58,66 @@ pub struct TrainingState {
     pub epoch_ends: Vec<(u64, u64)>,
     pub ranking: Ranking,
     pub wall_seconds: f64,
+}
+
+/// [`RoundStats`] in JSON, which has no NaN (`None` stands for it).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct LastRound {
+    critic_loss: Option<f64>,
+    q_mean: Option<f64>,
+    actor_loss: Vec<Option<f64>>,
+    alpha: Vec<Option<f64>>,
+    kl_to_best: Vec<Option<f64>>,
+    entropy: Vec<Option<f64>>,
+}
+
+impl From<&RoundStats> for LastRound {
+    fn from(s: &RoundStats) -> Self {
+        // Rounds are only kept when finite (a diverged one ends the run), so None is NaN.
+        let o = |v: f64| v.is_finite().then_some(v);
+        let all = |v: &[f64]| v.iter().map(|&x| o(x)).collect();
+        Self {
+            critic_loss: o(s.critic_loss),
+            q_mean: o(s.q_mean),
+            actor_loss: all(&s.actor_loss),
+            alpha: all(&s.alpha),
+            kl_to_best: all(&s.kl_to_best),
+            entropy: all(&s.entropy),
+        }
+    }
+}
+
+impl From<&LastRound> for RoundStats {
+    fn from(r: &LastRound) -> Self {
+        let f = |v: Option<f64>| v.unwrap_or(f64::NAN);
+        let all = |v: &[Option<f64>]| v.iter().map(|&x| f(x)).collect();
+        Self {
+            critic_loss: f(r.critic_loss),
+            q_mean: f(r.q_mean),
+            actor_loss: all(&r.actor_loss),
+            alpha: all(&r.alpha),
+            kl_to_best: all(&r.kl_to_best),
+            entropy: all(&r.entropy),
+        }
+    }
+}
+
+impl TrainingState {
+    /// Each actor's rollout record; for a checkpoint without one, fresh episodes numbered far
+    /// from any the run had (so their seeds are new) after the transitions received.
+    pub fn rollouts(&self) -> Vec<Rollout> {
+        if self.rollouts.len() == self.received.len() {
+            return self.rollouts.clone();
+        }
+        self.received
+            .iter()
+            .map(|&sent| Rollout {
+                sent,
+                episode: (1 << 40) + sent,
+                ..Rollout::default()
+            })
+            .collect()
+    }
 }
 
 fn tensors(s: &Selkd) -> Vec<(String, &Tensor)> {
@@ -73,6 +150,25 @@ pub fn save(
 ) -> Result<()> {
     let tmp = dir.with_extension("partial");
     let _ = std::fs::remove_dir_all(&tmp);
+    // A failed write (a full disk) leaves nothing behind: the space goes back to the run.
+    if let Err(e) = write_into(&tmp, selkd, replay, state) {
+        let _ = std::fs::remove_dir_all(&tmp);
+        return Err(e);
+    }
+    replace_dir(&tmp, dir)?;
+    if let Some(parent) = dir.parent() {
+        fsync(parent)?;
+    }
+    Ok(())
+}
+
+/// The files of a checkpoint, written and fsynced into the fresh directory `tmp`.
+fn write_into(
+    tmp: &Path,
+    selkd: &Selkd,
+    replay: Option<&mut ReplayBuffer>,
+    state: &TrainingState,
+) -> Result<()> {
     std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
     let named: Vec<(String, Tensor)> = tensors(selkd)
         .into_iter()
@@ -93,10 +189,6 @@ pub fn save(
         }
     }
     fsync(&tmp)?;
-    replace_dir(&tmp, dir)?;
-    if let Some(parent) = dir.parent() {
-        fsync(parent)?;
-    }
     Ok(())
 }
 

@@ -33,6 +33,9 @@ pub struct RunConfig {
     pub checkpoint_every: u64,
     /// Include the replay buffer in checkpoints (large; lets a resumed run continue exactly).
     pub checkpoint_replay: bool,
+    /// Seconds a worker the run waits on (for a transition or an evaluation) may send nothing
+    /// before it is reported, and `selkd train` kills and restarts it.
+    pub worker_timeout: f64,
 }
 
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
@@ -177,6 +180,9 @@ impl Default for RunConfig {
             threads: 0,
             checkpoint_every: 50_000,
             checkpoint_replay: false,
+            // Ten humanoid evaluation episodes take about 10 s on one busy core; the margin
+            // covers slower machines and the worker's start-up.
+            worker_timeout: 120.0,
         }
     }
 }
@@ -306,6 +312,12 @@ impl Config {
                 "algo.hidden = {:?} needs 1 to {} layers, each of size ≥ 1",
                 a.hidden,
                 selkd_protocol::MAX_HIDDEN_LAYERS
+            ));
+        }
+        if !(self.run.worker_timeout >= 1.0 && self.run.worker_timeout.is_finite()) {
+            return bad(format!(
+                "run.worker_timeout = {} must be at least 1 (seconds)",
+                self.run.worker_timeout
             ));
         }
         if a.batch_size > a.replay_capacity {

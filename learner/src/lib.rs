@@ -13,6 +13,7 @@ pub mod optim;
 pub mod ranking;
 pub mod rate_limit;
 pub mod replay;
+pub mod rollout;
 pub mod selkd;
 pub mod service;
 pub mod squashed_gaussian;

@@ -7,6 +7,7 @@ use crate::config::{Config, Mode};
 use crate::ranking::Ranking;
 use crate::rate_limit::RateLimiter;
 use crate::replay::ReplayBuffer;
+use crate::rollout::{Pending, Rollout, Watchdog};
 use crate::selkd::{RoundStats, Selkd};
 use anyhow::{anyhow, bail, Context, Result};
 use iceoryx2::port::update_connections::UpdateConnections;
@@ -48,14 +49,6 @@ pub fn parse_device(s: &str) -> Result<Device> {
     Ok(device)
 }
 
-/// A received transition on its way into the replay buffer. `row` is `None` for one that was
-/// dropped for a non-finite value: it still counts as the worker's env step (so lockstep rounds,
-/// budgets and epochs carry on), but nothing is stored.
-struct Pending {
-    header: TransitionHeader,
-    row: Option<Vec<f32>>,
-}
-
 pub struct Learner {
     cfg: Config,
     run_dir: PathBuf,
@@ -65,7 +58,14 @@ pub struct Learner {
     replay: ReplayBuffer,
     ranking: Ranking,
     limiter: RateLimiter,
-    received: Vec<u64>,
+    /// Per worker: where its rollout stands, as received.
+    rollouts: Vec<Rollout>,
+    /// Per worker: the process (incarnation) whose transitions are taken; `None` until one has
+    /// its cursor.
+    accepting: Vec<Option<u64>>,
+    /// Per worker: a process that said hello and waits for its cursor.
+    cursor_due: Vec<Option<u64>>,
+    watchdog: Watchdog,
     inserted: u64,
     lockstep_rounds: u64,
     weights_version: u64,
@@ -79,6 +79,9 @@ pub struct Learner {
     pending: Vec<VecDeque<Pending>>,
     dropped_nonfinite: u64,
     dropped_malformed: u64,
+    /// Transitions from a worker process the learner had already replaced (sent after its
+    /// successor took over): never stored, and the successor sends those steps itself.
+    dropped_stale: u64,
     lag_sum: f64,
     lag_count: u64,
     lag_max: u64,
@@ -175,9 +178,17 @@ impl Learner {
                 act_dim: spec.act_dim,
             },
             k,
-            received: resumed
-                .as_ref()
-                .map_or_else(|| vec![0; k], |s| s.received.clone()),
+            rollouts: resumed.as_ref().map_or_else(
+                || vec![Rollout::default(); k],
+                |s| s.rollouts(),
+            ),
+            accepting: vec![None; k],
+            cursor_due: vec![None; k],
+            watchdog: Watchdog::new(
+                k,
+                Duration::from_secs_f64(cfg.run.worker_timeout),
+                Instant::now(),
+            ),
             inserted,
             lockstep_rounds: resumed.as_ref().map_or(0, |s| s.lockstep_rounds),
             weights_version: resumed.as_ref().map_or(1, |s| s.weights_version),
@@ -187,13 +198,20 @@ impl Learner {
                 .map_or_else(VecDeque::new, |s| s.epoch_ends.iter().copied().collect()),
             eval_reported: vec![epochs_logged; k],
             eval_success: vec![(0, f64::NAN); k],
-            pending: (0..k).map(|_| VecDeque::new()).collect(),
-            dropped_nonfinite: 0,
-            dropped_malformed: 0,
-            lag_sum: 0.0,
-            lag_count: 0,
-            lag_max: 0,
-            last_stats: RoundStats::default(),
+            pending: match resumed.as_ref().filter(|s| s.pending.len() == k) {
+                Some(s) => s.pending.iter().map(|q| q.iter().cloned().collect()).collect(),
+                None => (0..k).map(|_| VecDeque::new()).collect(),
+            },
+            dropped_nonfinite: resumed.as_ref().map_or(0, |s| s.dropped[0]),
+            dropped_malformed: resumed.as_ref().map_or(0, |s| s.dropped[1]),
+            dropped_stale: resumed.as_ref().map_or(0, |s| s.dropped[2]),
+            lag_sum: resumed.as_ref().map_or(0.0, |s| s.policy_lag.0),
+            lag_count: resumed.as_ref().map_or(0, |s| s.policy_lag.1),
+            lag_max: resumed.as_ref().map_or(0, |s| s.policy_lag.2),
+            last_stats: resumed
+                .as_ref()
+                .and_then(|s| s.last_round.as_ref())
+                .map_or_else(RoundStats::default, RoundStats::from),
             epochs_logged,
             next_checkpoint: inserted.checked_div(every).map_or(0, |n| (n + 1) * every),
             started: Instant::now(),
@@ -259,6 +277,17 @@ impl Learner {
             })
             .collect::<Result<Vec<_>>>()?;
 
+        let cursor_pubs = (0..k)
+            .map(|i| {
+                Ok(services::cursor(&node, &svc, i)
+                    .map_err(io("cursor"))?
+                    .publisher_builder()
+                    .initial_max_slice_len(4096)
+                    .allocation_strategy(iceoryx2::prelude::AllocationStrategy::PowerOfTwo)
+                    .create()?)
+            })
+            .collect::<Result<Vec<_>>>()?;
+
         let publish_weights = |s: &Selkd, version: u64| -> Result<()> {
             for (i, p) in weight_pubs.iter().enumerate() {
                 let mut sample = p.loan_slice_uninit(n_params)?;
@@ -294,6 +323,26 @@ impl Learner {
             while let Some(t) = transitions.receive()? {
                 self.on_transition(*t.user_header(), t.payload());
             }
+            // A worker that said hello gets its cursor once every transition of its predecessor
+            // that arrived is counted; the predecessor's later ones (if it still lives) are not.
+            for w in 0..k {
+                if let Some(incarnation) = self.cursor_due[w].take() {
+                    let r = &self.rollouts[w];
+                    let p = &cursor_pubs[w];
+                    p.update_connections()?;
+                    let mut sample = p.loan_slice_uninit(r.actions.len())?;
+                    *sample.user_header_mut() = proto::CursorHeader {
+                        worker: w as u32,
+                        incarnation,
+                        sent: r.sent,
+                        episode: r.episode,
+                        step: r.step,
+                    };
+                    sample.write_from_slice(&r.actions).send()?;
+                    self.accepting[w] = Some(incarnation);
+                    notify_workers.notify()?;
+                }
+            }
             let trained = match self.cfg.run.mode {
                 Mode::Sync => self.advance_sync()?,
                 Mode::Async => self.advance_async()?,
@@ -327,6 +376,7 @@ impl Learner {
                         || finishing_since
                             .is_some_and(|t| t.elapsed() > Duration::from_secs(120))));
             let control = self.control(done);
+            self.watch(&control);
             if last_control
                 .as_ref()
                 .map(|c: &Control| !same_control(c, &control))
@@ -370,13 +420,22 @@ impl Learner {
             }
         }
         self.log_epochs()?;
-        self.checkpoint("final")?;
+        self.checkpoint("final").with_context(|| {
+            let checkpoints = self.run_dir.join("checkpoints");
+            let latest = std::fs::read_to_string(checkpoints.join("latest"))
+                .map_or("none".to_string(), |n| checkpoints.join(n.trim()).display().to_string());
+            format!(
+                "writing the final checkpoint (the latest complete one: {latest}; free space, then `selkd train --resume {}` continues from it)",
+                self.run_dir.display()
+            )
+        })?;
         // Give workers a moment to read the stop order before the node (and its history) goes away.
         std::thread::sleep(Duration::from_millis(200));
         tracing::info!(
             env_steps = self.inserted,
             critic_updates = self.selkd.critic_updates,
             dropped_nonfinite = self.dropped_nonfinite,
+            dropped_stale = self.dropped_stale,
             "learner done ({outcome:?})"
         );
         Ok(outcome)
@@ -391,6 +450,7 @@ impl Learner {
             );
             return;
         }
+        self.watchdog.heard(w, Instant::now());
         match r.kind {
             ReportKind::Hello => {
                 let spec = self.cfg.env_spec().expect("validated");
@@ -406,10 +466,14 @@ impl Learner {
                     );
                     return;
                 }
-                tracing::info!(
-                    "worker {w} joined (generation {}) holding weights version {}; learner at version {}",
-                    r.generation, r.weights_version, self.weights_version
-                );
+                if self.accepting[w] != Some(r.incarnation) && self.cursor_due[w].is_none() {
+                    let c = &self.rollouts[w];
+                    tracing::info!(
+                        "worker {w} joined (generation {}) holding weights version {}; learner at version {}; it continues at transition {} (episode {}, step {})",
+                        r.generation, r.weights_version, self.weights_version, c.sent, c.episode, c.step
+                    );
+                }
+                self.cursor_due[w] = Some(r.incarnation);
             }
             ReportKind::Evaluation => {
                 if r.epoch > self.eval_reported[w] {
@@ -440,7 +504,26 @@ impl Learner {
             }
             return;
         }
-        self.received[w] += 1;
+        if self.accepting[w] != Some(h.incarnation) {
+            self.dropped_stale += 1;
+            tracing::warn!(
+                worker = w,
+                total = self.dropped_stale,
+                "dropped a transition from a replaced process of worker {w} (generation {}); its successor sends that step itself",
+                h.generation
+            );
+            return;
+        }
+        self.watchdog.heard(w, Instant::now());
+        let (_, action, _, _, terminated, truncated) = self.row.split(row);
+        if !self.rollouts[w].record(h.episode, h.step, action, terminated || truncated) {
+            tracing::error!(
+                worker = w,
+                "transition of episode {} step {} is not the next one on record; a restart of this worker will not continue it exactly",
+                h.episode,
+                h.step
+            );
+        }
         let finite = row.iter().all(|v| v.is_finite());
         if !finite {
             self.dropped_nonfinite += 1;
@@ -462,7 +545,8 @@ impl Learner {
             self.lag_max = self.lag_max.max(lag);
         }
         let p = Pending {
-            header: h,
+            worker: w,
+            episode_return: h.episode_return.is_finite().then_some(h.episode_return),
             row: finite.then(|| row.to_vec()),
         };
         match self.cfg.run.mode {
@@ -477,9 +561,8 @@ impl Learner {
             self.replay.push(s, a, r, s2, terminated);
         }
         self.inserted += 1;
-        if p.header.episode_return.is_finite() {
-            self.ranking
-                .training_episode(p.header.worker as usize, p.header.episode_return);
+        if let Some(episode_return) = p.episode_return {
+            self.ranking.training_episode(p.worker, episode_return);
         }
         let epoch = self.inserted / self.cfg.eval.epoch_env_steps;
         if epoch > self.eval_epoch {
@@ -579,12 +662,10 @@ impl Learner {
                     .insert_allowance(self.inserted, self.selkd.actor_updates);
                 let each = allowance.div_ceil(self.k as u64);
                 for (w, x) in budget[..self.k].iter_mut().enumerate() {
-                    *x = (self.received[w] + each).min(per_actor_cap);
+                    *x = (self.rollouts[w].sent + each).min(per_actor_cap);
                 }
             }
         }
-        let mut received = [0u64; MAX_ACTORS];
-        received[..self.k].copy_from_slice(&self.received);
         let mut hidden = [0u32; MAX_HIDDEN_LAYERS];
         for (h, &v) in hidden.iter_mut().zip(&self.cfg.algo.hidden) {
             *h = v as u32;
@@ -612,8 +693,30 @@ impl Learner {
                 crate::config::Backbone::Td3 => self.cfg.algo.exploration_noise as f32,
             },
             stop: stop as u32,
-            received,
             budget,
+        }
+    }
+
+    /// Reports workers the run waits on that have been silent for `run.worker_timeout`: one
+    /// `STALLED {json}` line on stdout each (the launcher kills and restarts the worker).
+    fn watch(&mut self, control: &Control) {
+        let owes: Vec<bool> = (0..self.k)
+            .map(|w| {
+                let owes_step = self.rollouts[w].sent < control.budget[w]
+                    && (self.cfg.run.mode == Mode::Async || self.pending[w].is_empty());
+                let owes_eval = self.eval_reported[w] < self.eval_epoch;
+                control.stop == 0 && (owes_step || owes_eval || self.accepting[w].is_none())
+            })
+            .collect();
+        for (w, silent) in self.watchdog.late(&owes, Instant::now()) {
+            tracing::warn!(
+                "worker {w} has sent nothing for {:.0} s while the run waits on it (run.worker_timeout = {}); it is hung or stopped: restart it",
+                silent.as_secs_f64(),
+                self.cfg.run.worker_timeout
+            );
+            let mut out = std::io::stdout().lock();
+            let line = serde_json::json!({ "worker": w, "silent_s": silent.as_secs_f64() });
+            let _ = writeln!(out, "STALLED {line}").and_then(|()| out.flush());
         }
     }
 
@@ -649,6 +752,7 @@ impl Learner {
             "target_updates_per_transition": target,
             "dropped_nonfinite": self.dropped_nonfinite,
             "dropped_malformed": self.dropped_malformed,
+            "dropped_stale": self.dropped_stale,
             "wall_s": self.wall(),
         });
         // The launcher may be gone (its stdout closed): progress is best effort, never a panic.
@@ -723,7 +827,7 @@ impl Learner {
                 } else {
                     0.0
                 },
-                self.dropped_nonfinite + self.dropped_malformed,
+                self.dropped_nonfinite + self.dropped_malformed + self.dropped_stale,
                 join(&success),
             )?;
             self.metrics.flush()?;
@@ -746,7 +850,20 @@ impl Learner {
             critic_updates: self.selkd.critic_updates,
             actor_updates: self.selkd.actor_updates,
             adam_steps: checkpoint::adam_steps(&self.selkd),
-            received: self.received.clone(),
+            received: self.rollouts.iter().map(|r| r.sent).collect(),
+            rollouts: self.rollouts.clone(),
+            last_round: Some((&self.last_stats).into()),
+            dropped: [
+                self.dropped_nonfinite,
+                self.dropped_malformed,
+                self.dropped_stale,
+            ],
+            policy_lag: (self.lag_sum, self.lag_count, self.lag_max),
+            pending: self
+                .pending
+                .iter()
+                .map(|q| q.iter().cloned().collect())
+                .collect(),
             inserted: self.inserted,
             lockstep_rounds: self.lockstep_rounds,
             weights_version: self.weights_version,
@@ -788,7 +905,6 @@ fn truncate_metrics(path: &Path, epochs: u64) -> Result<()> {
 }
 
 fn same_control(a: &Control, b: &Control) -> bool {
-    // `received` changes with every transition but only matters to a worker that is starting.
     a.weights_version == b.weights_version
         && a.eval_epoch == b.eval_epoch
         && a.stop == b.stop
@@ -821,7 +937,9 @@ mod tests {
         let mut cfg = Config::default();
         cfg.run.mode = mode;
         cfg.algo.actors = 2;
-        (Learner::new(cfg, &dir, None).unwrap(), dir)
+        let mut l = Learner::new(cfg, &dir, None).unwrap();
+        l.accepting = vec![Some(7); 2];
+        (l, dir)
     }
 
     fn header(worker: u32) -> TransitionHeader {
@@ -831,6 +949,7 @@ mod tests {
             act_dim: 1,
             episode_return: f64::NAN,
             policy_version: 1,
+            incarnation: 7,
             ..Default::default()
         }
     }

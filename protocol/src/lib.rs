@@ -6,6 +6,7 @@
 //! | `selkd/<run>/transitions`  | worker → learner | [`TransitionHeader`] + `[f32]` row        |
 //! | `selkd/<run>/reports`      | worker → learner | [`Report`] (hello, evaluation)            |
 //! | `selkd/<run>/weights/<i>`  | learner → worker | [`WeightsHeader`] + `[f32]` actor weights |
+//! | `selkd/<run>/cursor/<i>`   | learner → worker | [`CursorHeader`] + `[f32]` episode's actions |
 //! | `selkd/<run>/control`      | learner → all    | [`Control`] (run facts, budgets, stop)    |
 //! | `selkd/<run>/ranking`      | learner → all    | [`Ranking`]                               |
 //! | `selkd/<run>/to-learner`   | event            | "something for the learner"               |
@@ -14,13 +15,20 @@
 //! Weights, control and ranking keep a history of one, so a worker that starts late (or restarts)
 //! gets the current ones at once. Transitions are never dropped: the learner's buffer is sized
 //! above what the budgets in [`Control`] let workers have in flight, and overflow is off.
+//!
+//! The learner is the record of where each worker's rollout stands. A worker that starts (the
+//! first time, restarted after a crash, or in a run resumed from a checkpoint) says hello and
+//! waits for its cursor: how many transitions the learner has from it, and the episode and step
+//! they reach, with the actions of that episode so far. Its episodes are seeded by their index and
+//! its actions by (episode, step), so replaying those actions on the episode's seed puts it exactly
+//! where the learner's record ends: nothing is sent twice, nothing is skipped.
 
 pub mod lock;
 
 use iceoryx2::prelude::*;
 
 /// Bumped whenever a message layout or meaning changes; checked in the handshake.
-pub const PROTOCOL_VERSION: u32 = 3;
+pub const PROTOCOL_VERSION: u32 = 4;
 /// Most actors a run may have (fixed arrays in [`Control`] and [`Ranking`]).
 pub const MAX_ACTORS: usize = 64;
 pub const MAX_HIDDEN_LAYERS: usize = 8;
@@ -56,6 +64,9 @@ pub struct TransitionHeader {
     pub worker: u32,
     /// How many times this worker was (re)started before this process.
     pub generation: u32,
+    /// This process's [`Report::incarnation`]: the learner stores transitions only from the
+    /// process it handed the worker's cursor to.
+    pub incarnation: u64,
     pub episode: u64,
     /// Index of this step within its episode.
     pub step: u64,
@@ -135,6 +146,23 @@ pub struct WeightsHeader {
     pub version: u64,
 }
 
+/// Where a worker's rollout continues (see the crate doc); the payload is the actions of episode
+/// `episode` so far, `step × act_dim` values.
+#[derive(Debug, Default, Clone, Copy, ZeroCopySend)]
+#[repr(C)]
+#[type_name("selkd::CursorHeader")]
+pub struct CursorHeader {
+    pub worker: u32,
+    /// The worker process this cursor is for (its hello's incarnation).
+    pub incarnation: u64,
+    /// Transitions the learner has from this worker: the next one sent is number `sent`.
+    pub sent: u64,
+    /// The episode (counted per worker from 0) the next transition belongs to.
+    pub episode: u64,
+    /// Its step within that episode.
+    pub step: u64,
+}
+
 /// What a worker reports besides transitions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
 #[repr(C)]
@@ -153,6 +181,9 @@ pub struct Report {
     pub kind: ReportKind,
     pub worker: u32,
     pub generation: u32,
+    /// Random, fixed for the life of one worker process: tells a restarted (or duplicate)
+    /// process from the one it replaces.
+    pub incarnation: u64,
     pub protocol_version: u32,
     pub env: Name,
     /// Fingerprint of the env's options (`selkd_envs::options_fingerprint`).
@@ -199,8 +230,6 @@ pub struct Control {
     /// plus Gaussian noise of this std, clipped to [-1, 1] (TD3).
     pub exploration_noise: f32,
     pub stop: u32,
-    /// Per actor: transitions the learner has received so far.
-    pub received: [u64; MAX_ACTORS],
     /// Per actor: a worker may send transitions while its count is below this.
     pub budget: [u64; MAX_ACTORS],
 }
@@ -241,6 +270,9 @@ impl Services {
     }
     pub fn weights(&self, actor: usize) -> Result<ServiceName, ProtocolError> {
         self.name(&format!("weights/{actor}"))
+    }
+    pub fn cursor(&self, actor: usize) -> Result<ServiceName, ProtocolError> {
+        self.name(&format!("cursor/{actor}"))
     }
     pub fn control(&self) -> Result<ServiceName, ProtocolError> {
         self.name("control")
@@ -339,7 +371,6 @@ mod tests {
             eval_episodes: 1,
             exploration_noise: 0.0,
             stop: 0,
-            received: [0; MAX_ACTORS],
             budget: [0; MAX_ACTORS],
         }
     }
@@ -460,6 +491,16 @@ pub mod services {
     ) -> Result<PubSub<[f32], WeightsHeader>, Error> {
         Ok(latest!(node, s.weights(actor)?, [f32])
             .user_header::<WeightsHeader>()
+            .open_or_create()?)
+    }
+
+    pub fn cursor(
+        node: &Node,
+        s: &Services,
+        actor: usize,
+    ) -> Result<PubSub<[f32], CursorHeader>, Error> {
+        Ok(latest!(node, s.cursor(actor)?, [f32])
+            .user_header::<CursorHeader>()
             .open_or_create()?)
     }
 

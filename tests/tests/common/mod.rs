@@ -111,3 +111,26 @@ pub fn assert_success(out: &Output, run_dir: &Path) {
         log(run_dir, "learner.log")
     );
 }
+
+/// Pids of this run's actor-worker processes for `worker`, from /proc.
+pub fn worker_pids(run_id: &str, worker: usize) -> Vec<i32> {
+    let want = format!("--run-id\0{run_id}\0--worker\0{worker}\0");
+    std::fs::read_dir("/proc")
+        .unwrap()
+        .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<i32>().ok())
+        .filter(|pid| {
+            std::fs::read(format!("/proc/{pid}/cmdline"))
+                .map(|c| String::from_utf8_lossy(&c).contains(&want))
+                .unwrap_or(false)
+        })
+        .collect()
+}
+
+pub fn env_steps_so_far(dir: &std::path::Path) -> u64 {
+    let text = log(dir, "progress.jsonl");
+    text.lines()
+        .last()
+        .and_then(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .and_then(|v| v["env_steps"].as_u64())
+        .unwrap_or(0)
+}
