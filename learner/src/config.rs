@@ -33,6 +33,8 @@ pub struct RunConfig {
     pub checkpoint_every: u64,
     /// Include the replay buffer in checkpoints (large; lets a resumed run continue exactly).
     pub checkpoint_replay: bool,
+    /// Periodic checkpoints kept (the newest ones; `final` is always kept).
+    pub keep_checkpoints: usize,
     /// Seconds a worker the run waits on (for a transition or an evaluation) may send nothing
     /// before it is reported, and `selkd train` kills and restarts it.
     pub worker_timeout: f64,
@@ -180,6 +182,7 @@ impl Default for RunConfig {
             threads: 0,
             checkpoint_every: 50_000,
             checkpoint_replay: false,
+            keep_checkpoints: 3,
             // Ten humanoid evaluation episodes take about 10 s on one busy core; the margin
             // covers slower machines and the worker's start-up.
             worker_timeout: 120.0,
@@ -313,6 +316,9 @@ impl Config {
                 a.hidden,
                 selkd_protocol::MAX_HIDDEN_LAYERS
             ));
+        }
+        if self.run.keep_checkpoints == 0 {
+            return bad("run.keep_checkpoints must be at least 1 (the default is 3)".into());
         }
         if !(self.run.worker_timeout >= 1.0 && self.run.worker_timeout.is_finite()) {
             return bad(format!(

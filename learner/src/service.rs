@@ -884,7 +884,31 @@ impl Learner {
             "checkpoint written to {}",
             dir.display()
         );
+        prune_checkpoints(&self.run_dir.join("checkpoints"), self.cfg.run.keep_checkpoints);
         Ok(())
+    }
+}
+
+/// Removes all but the newest `keep` periodic checkpoints (`step-N`); others stay. Best effort:
+/// a checkpoint that cannot be removed is only logged.
+fn prune_checkpoints(dir: &Path, keep: usize) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let mut steps: Vec<(u64, PathBuf)> = entries
+        .filter_map(|e| {
+            let e = e.ok()?;
+            let name = e.file_name().into_string().ok()?;
+            let n = name.strip_prefix("step-")?.parse().ok()?;
+            e.path().is_dir().then(|| (n, e.path()))
+        })
+        .collect();
+    steps.sort();
+    let old = steps.len().saturating_sub(keep);
+    for (_, path) in &steps[..old] {
+        if let Err(e) = std::fs::remove_dir_all(path) {
+            tracing::warn!("removing old checkpoint {}: {e}", path.display());
+        }
     }
 }
 
@@ -989,6 +1013,24 @@ mod tests {
             );
             let _ = std::fs::remove_dir_all(dir);
         }
+    }
+
+    #[test]
+    fn only_the_newest_periodic_checkpoints_are_kept() {
+        let dir = std::env::temp_dir().join(format!("selkd-prune-{}", std::process::id()));
+        for name in ["step-900", "step-10000", "step-2000", "step-3000", "final", "step-x"] {
+            std::fs::create_dir_all(dir.join(name)).unwrap();
+        }
+        std::fs::write(dir.join("latest"), "step-10000\n").unwrap();
+        prune_checkpoints(&dir, 2);
+        let mut left: Vec<String> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        left.sort();
+        // Numeric order, not text order: step-10000 is the newest.
+        assert_eq!(left, ["final", "latest", "step-10000", "step-3000", "step-x"]);
+        let _ = std::fs::remove_dir_all(dir);
     }
 
     #[test]

@@ -52,11 +52,17 @@ fn a_killed_worker_is_restarted_and_rejoins_with_the_current_weights() {
         .lines()
         .find(|l| l.contains("worker 1 joined (generation 1)"))
         .unwrap_or_else(|| panic!("no rejoin in learner log:\n{learner}"));
-    let nums: Vec<u64> = line
-        .split(|c: char| !c.is_ascii_digit())
-        .filter_map(|t| t.parse().ok())
-        .collect();
-    let (held, current) = (nums[nums.len() - 2], nums[nums.len() - 1]);
+    let number_after = |key: &str| -> u64 {
+        line.split(key)
+            .nth(1)
+            .and_then(|r| r.split(|c: char| !c.is_ascii_digit()).next())
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("no `{key}` in: {line}"))
+    };
+    let (held, current) = (
+        number_after("holding weights version "),
+        number_after("learner at version "),
+    );
     assert!(
         held > 1,
         "the restarted worker should hold trained weights, not the initial ones: {line}"

@@ -317,3 +317,101 @@ fn a_hung_worker_is_noticed_killed_and_replaced_in_both_modes() {
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
+
+/// The script run in a user and mount namespace of its own (where an unprivileged user may
+/// mount a tmpfs): a run on a small tmpfs whose disk is filled after its first checkpoint, then
+/// emptied and the run resumed. Its output ends with the run directory copied to `$3`.
+const DISK_FULL: &str = r#"
+set -u
+dir=$1; selkd=$2; out=$3; shift 3
+mount -t tmpfs -o size=16m tmpfs "$dir" || exit 0
+echo MOUNTED
+"$selkd" train --run-dir "$dir/run" "$@" 2>"$out/first.err" &
+pid=$!
+while [ ! -f "$dir/run/checkpoints/latest" ]; do sleep 0.02; done
+# Leave 64 KiB: room for metrics and logs, none for a checkpoint.
+avail=$(df --output=avail -B1 "$dir" | tail -1)
+head -c $((avail - 65536)) /dev/zero > "$dir/filler" 2>/dev/null
+wait $pid
+echo "FIRST_EXIT $?"
+ls "$dir/run/checkpoints" > "$out/after-first.txt"
+rm "$dir/filler"
+"$selkd" train --resume "$dir/run" 2>"$out/second.err"
+echo "SECOND_EXIT $?"
+cp -a "$dir/run" "$out/run"
+"#;
+
+/// A full disk: the periodic checkpoints that fail are logged and leave nothing behind, the run
+/// trains on to its budget, the final checkpoint's failure is a one-line error naming the last
+/// complete checkpoint, and after space is freed the run resumes from it and finishes. Skipped
+/// (with a message) where a tmpfs cannot be mounted.
+#[test]
+fn a_full_disk_fails_checkpoints_not_the_run_and_the_run_resumes_once_space_is_back() {
+    let base = temp_dir("disk-full");
+    let (mnt, out) = (base.join("mnt"), base.join("out"));
+    std::fs::create_dir_all(&mnt).unwrap();
+    std::fs::create_dir_all(&out).unwrap();
+    let sets = small_run(&[
+        "algo.actors=2",
+        "run.total_env_steps=8000",
+        "run.checkpoint_every=1000",
+        "run.checkpoint_replay=true",
+    ]);
+    let result = std::process::Command::new("unshare")
+        .args(["--user", "--map-root-user", "--mount", "sh", "-c", DISK_FULL, "sh"])
+        .arg(&mnt)
+        .arg(bin("selkd"))
+        .arg(&out)
+        .args(&sets)
+        .stdin(std::process::Stdio::null())
+        .output();
+    let stdout = result
+        .as_ref()
+        .map(|o| String::from_utf8_lossy(&o.stdout).to_string())
+        .unwrap_or_default();
+    if !stdout.contains("MOUNTED") {
+        eprintln!(
+            "skipped: cannot mount a tmpfs in a user namespace here ({})",
+            result.map_or_else(
+                |e| e.to_string(),
+                |o| String::from_utf8_lossy(&o.stderr).trim().to_string()
+            )
+        );
+        let _ = std::fs::remove_dir_all(&base);
+        return;
+    }
+    let read = |f: &str| std::fs::read_to_string(out.join(f)).unwrap_or_default();
+    let first_err = read("first.err");
+    assert!(stdout.contains("FIRST_EXIT 1"), "{stdout}\n{first_err}");
+    assert!(
+        first_err.contains("writing the final checkpoint (the latest complete one: ")
+            && first_err.contains("No space left on device")
+            && first_err.contains("--resume"),
+        "{first_err}"
+    );
+    assert!(!first_err.contains("panicked"), "{first_err}");
+    let run = out.join("run");
+    let learner = log(&run, "learner.log");
+    assert!(
+        learner.contains("env steps failed") && learner.contains("training goes on"),
+        "a periodic checkpoint failed and was logged:\n{learner}"
+    );
+    let listed = read("after-first.txt");
+    assert!(
+        !listed.contains("partial") && !listed.contains("final"),
+        "a failed checkpoint leaves nothing behind: {listed}"
+    );
+    assert!(
+        stdout.contains("SECOND_EXIT 0"),
+        "{stdout}\n{}",
+        read("second.err")
+    );
+    let (h, rows) = metrics(&run);
+    assert_eq!(
+        column(&h, &rows, "epoch"),
+        (1..=8).map(|e| e as f64).collect::<Vec<_>>(),
+        "one row per epoch, the budget reached"
+    );
+    assert!(run.join("checkpoints/final/state.json").exists());
+    let _ = std::fs::remove_dir_all(&base);
+}
