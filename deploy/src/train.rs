@@ -606,3 +606,35 @@ fn progress_line(p: &serde_json::Value, elapsed: Duration) -> String {
         f("policy_lag_mean"),
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn restarts_back_off_while_a_worker_keeps_dying_and_give_up_past_the_window_limit() {
+        let window = Duration::from_secs(600);
+        let mut slot = Slot::new(1);
+        let ms = Duration::from_millis;
+        // Dying soon after each start: at once, then 0.5 s doubling, capped at 10 s.
+        let waits: Vec<Option<Duration>> = (0..7).map(|_| slot.died(7, window)).collect();
+        assert_eq!(
+            waits,
+            [0, 500, 1000, 2000, 4000, 8000, 10_000].map(|m| Some(ms(m)))
+        );
+        assert_eq!(slot.died(7, window), None, "the 8th death in the window");
+        // A worker that lived STEADY restarts at once again.
+        let mut slot = Slot::new(1);
+        slot.died(20, window);
+        slot.died(20, window);
+        slot.started = Instant::now() - STEADY;
+        assert_eq!(slot.died(20, window), Some(Duration::ZERO));
+        // Deaths older than the window no longer count.
+        let mut slot = Slot::new(1);
+        let short = ms(50);
+        assert!(slot.died(1, short).is_some());
+        assert!(slot.died(1, short).is_none(), "two deaths within 50 ms");
+        std::thread::sleep(ms(60));
+        assert!(slot.died(1, short).is_some(), "the earlier ones left the window");
+    }
+}
