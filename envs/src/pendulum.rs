@@ -164,12 +164,9 @@ mod tests {
     use serde_json::Value;
 
     fn golden() -> Vec<Value> {
-        let path = concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../../shared/golden/pendulum_v1.jsonl"
-        );
-        let text = std::fs::read_to_string(path)
-            .expect("shared/golden/pendulum_v1.jsonl beside the clone");
+        // Gymnasium's own transitions (how they were made: envs/testdata/README.md).
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/testdata/pendulum_v1.jsonl");
+        let text = std::fs::read_to_string(path).expect("envs/testdata/pendulum_v1.jsonl");
         text.lines()
             .map(|l| serde_json::from_str(l).unwrap())
             .collect()
