@@ -53,6 +53,8 @@ enum Command {
 }
 
 fn main() {
+    // Before anything else: it may execute selkd again (its children inherit the setting).
+    selkd_learner::passive_openmp();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Train(args) => train::run(args),

@@ -33,6 +33,7 @@ struct Args {
 }
 
 fn main() {
+    selkd_learner::passive_openmp();
     // Colour only on a terminal: the launcher sends these logs to files.
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
