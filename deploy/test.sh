@@ -4,6 +4,7 @@ set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
 bash deploy/setup.sh
+bash deploy/test-deps.sh
 # The end-to-end tests start the real binaries: build them first, in the tests' profile.
 cargo build --release --workspace --locked
 log=$(mktemp)

@@ -18,6 +18,7 @@ pub mod selkd;
 pub mod service;
 pub mod squashed_gaussian;
 pub mod targets;
+pub mod tensorboard;
 
 /// Makes libtorch's OpenMP threads sleep, not spin, when they wait: with the default (spinning)
 /// policy, a learner whose threads share cores with workers or another job collapses (3 updates/s

@@ -9,6 +9,7 @@ use crate::rate_limit::RateLimiter;
 use crate::replay::ReplayBuffer;
 use crate::rollout::{Pending, Rollout, Watchdog};
 use crate::selkd::{RoundStats, Selkd};
+use crate::tensorboard::EventWriter;
 use anyhow::{anyhow, bail, Context, Result};
 use iceoryx2::port::update_connections::UpdateConnections;
 use selkd_protocol::{
@@ -91,6 +92,8 @@ pub struct Learner {
     started: Instant,
     wall_offset: f64,
     metrics: std::fs::File,
+    /// TensorBoard events (`RUN/tb/`); `None` if the file could not be made (logged).
+    tb: Option<EventWriter>,
 }
 
 impl Learner {
@@ -217,6 +220,9 @@ impl Learner {
             started: Instant::now(),
             wall_offset: resumed.as_ref().map_or(0.0, |s| s.wall_seconds),
             metrics,
+            tb: EventWriter::create(&run_dir.join("tb"), inserted)
+                .map_err(|e| tracing::warn!("no TensorBoard events for this run: {e:#}"))
+                .ok(),
             run_dir: run_dir.to_path_buf(),
             selkd,
             replay,
@@ -303,6 +309,7 @@ impl Learner {
         let mut last_control = None;
         let mut ranking_version = u64::MAX;
         let mut last_progress = Instant::now();
+        let mut last_live = Instant::now();
         let mut last_connect = Instant::now();
         let mut window = (Instant::now(), self.inserted, self.selkd.critic_updates);
         let mut rates = (0.0, 0.0);
@@ -410,6 +417,10 @@ impl Learner {
                     window = (Instant::now(), self.inserted, self.selkd.critic_updates);
                 }
                 self.progress(rates);
+                if last_live.elapsed() >= Duration::from_secs(5) || done {
+                    self.live_scalars(rates);
+                    last_live = Instant::now();
+                }
                 last_progress = Instant::now();
             }
             if done {
@@ -720,6 +731,84 @@ impl Learner {
         }
     }
 
+    /// One epoch's metrics row as TensorBoard scalars at its env steps.
+    fn epoch_scalars(
+        &mut self,
+        epoch: u64,
+        env_steps: u64,
+        eval: &[f64],
+        scores: &[f64],
+        success: &[f64],
+        wall: f64,
+    ) {
+        let Some(tb) = self.tb.as_mut() else {
+            return;
+        };
+        let st = &self.last_stats;
+        let lag = if self.lag_count > 0 {
+            self.lag_sum / self.lag_count as f64
+        } else {
+            0.0
+        };
+        let mut values: Vec<(String, f64)> = vec![
+            ("eval/best".into(), self.ranking.best() as f64),
+            ("train/epoch".into(), epoch as f64),
+            ("train/critic_updates".into(), self.selkd.critic_updates as f64),
+            ("train/critic_loss".into(), st.critic_loss),
+            ("train/q_mean".into(), st.q_mean),
+            ("train/policy_lag_mean".into(), lag),
+            (
+                "train/dropped".into(),
+                (self.dropped_nonfinite + self.dropped_malformed + self.dropped_stale) as f64,
+            ),
+            ("rates/updates_per_s".into(), self.selkd.critic_updates as f64 / wall.max(1e-9)),
+            ("rates/env_steps_per_s".into(), self.inserted as f64 / wall.max(1e-9)),
+        ];
+        for i in 0..self.k {
+            let at = |v: &[f64]| v.get(i).copied().unwrap_or(f64::NAN);
+            values.push((format!("eval/return_{i}"), at(eval)));
+            values.push((format!("eval/score_{i}"), at(scores)));
+            values.push((format!("eval/success_{i}"), at(success)));
+            values.push((format!("train/alpha_{i}"), at(&st.alpha)));
+            values.push((format!("train/kl_to_best_{i}"), at(&st.kl_to_best)));
+        }
+        let written: Result<()> = values
+            .iter()
+            .try_for_each(|(tag, v)| tb.scalar(tag, env_steps, *v))
+            .and_then(|()| tb.flush());
+        if let Err(e) = written {
+            tracing::warn!("TensorBoard events stop here: {e:#}");
+            self.tb = None;
+        }
+    }
+
+    /// The latest round's losses, α, KL and the rates, every few seconds (`live/`).
+    fn live_scalars(&mut self, (updates_per_s, steps_per_s): (f64, f64)) {
+        let Some(tb) = self.tb.as_mut() else {
+            return;
+        };
+        let st = &self.last_stats;
+        let mut values: Vec<(String, f64)> = vec![
+            ("live/critic_loss".into(), st.critic_loss),
+            ("live/q_mean".into(), st.q_mean),
+            ("live/updates_per_s".into(), updates_per_s),
+            ("live/env_steps_per_s".into(), steps_per_s),
+        ];
+        for (i, (a, kl)) in st.alpha.iter().zip(&st.kl_to_best).enumerate() {
+            values.push((format!("live/alpha_{i}"), *a));
+            values.push((format!("live/kl_to_best_{i}"), *kl));
+        }
+        let step = self.inserted;
+        let written: Result<()> = values
+            .iter()
+            .try_for_each(|(tag, v)| tb.scalar(tag, step, *v))
+            .and_then(|()| tb.flush());
+        if let Err(e) = written {
+            tracing::warn!("TensorBoard events stop here: {e:#}");
+            self.tb = None;
+        }
+    }
+
     fn ranking_message(&self) -> proto::Ranking {
         let mut scores = [f64::NAN; MAX_ACTORS];
         for (s, v) in scores.iter_mut().zip(self.ranking.scores()) {
@@ -831,6 +920,7 @@ impl Learner {
                 join(&success),
             )?;
             self.metrics.flush()?;
+            self.epoch_scalars(e, env_steps, &eval, &scores, &success, wall);
             tracing::info!(
                 epoch = e,
                 env_steps,
