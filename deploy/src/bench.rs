@@ -96,10 +96,14 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
                 ..AlgoConfig::default()
             };
             let device = selkd_learner::service::parse_device(&b.device)?;
+            selkd_learner::service::check_matmul(cfg.critic_matmul, device)?;
             let r = selkd_learner::bench::learner(&cfg, b.obs, b.act, device, b.rounds);
+            let gflops =
+                selkd_learner::bench::flops_per_round(&cfg, b.obs, b.act) * r.rounds_per_sec / 1e9;
             println!(
-                "K={} N={} M={} G={} batch={} obs={} act={} hidden={} {} {} on {} ({} threads): {:.1} rounds/s",
-                b.k, b.n, b.m, b.g, b.batch, b.obs, b.act, b.hidden, b.sharing, b.critic_matmul, b.device, tch::get_num_threads(), r.rounds_per_sec
+                "K={} N={} M={} G={} batch={} obs={} act={} hidden={} {} {} on {} ({}, {} threads): {:.1} rounds/s, {gflops:.1} GFLOP/s in matmuls",
+                b.k, b.n, b.m, b.g, b.batch, b.obs, b.act, b.hidden, b.sharing, b.critic_matmul, b.device,
+                selkd_learner::service::cpu_model(), tch::get_num_threads(), r.rounds_per_sec
             );
             println!("{:.2} updates/s", r.critic_updates_per_sec);
         }

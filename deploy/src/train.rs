@@ -133,7 +133,8 @@ pub fn run(mut args: TrainArgs) -> Result<i32> {
     };
     let cfg = Config::from_toml_with_overrides(&text, &args.set)?;
     // A device that is not there is a config error, found before any process starts.
-    selkd_learner::service::parse_device(&cfg.run.device)?;
+    let device = selkd_learner::service::parse_device(&cfg.run.device)?;
+    selkd_learner::service::check_matmul(cfg.algo.critic_matmul, device)?;
     let bin_dir = std::env::current_exe()?
         .parent()
         .map(Path::to_path_buf)
