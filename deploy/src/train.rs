@@ -27,7 +27,7 @@ macro_rules! sayp {
 }
 
 /// The quick default: learning on Pendulum within a few minutes on 2 cores.
-const QUICK_CONFIG: &str = include_str!("../../configs/quick.toml");
+pub(crate) const QUICK_CONFIG: &str = include_str!("../../configs/quick.toml");
 
 #[derive(Args, Debug)]
 pub struct TrainArgs {
@@ -583,28 +583,13 @@ fn is_zombie(pid: u32) -> bool {
 }
 
 fn progress_line(p: &serde_json::Value, elapsed: Duration) -> String {
-    let f = |k: &str| p[k].as_f64().unwrap_or(0.0);
-    let scores: Vec<String> = p["scores"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .map(|s| s.as_f64().map_or("–".into(), |v| format!("{v:.0}")))
-                .collect()
-        })
-        .unwrap_or_default();
-    let total = f("total_env_steps").max(1.0);
-    format!(
-        "[{:>6.0}s] env steps {}/{} ({:.0}%) | {:.0} updates/s | {:.0} env steps/s | scores [{}] | best {} | lag {:.1}",
-        elapsed.as_secs_f64(),
-        f("env_steps") as u64,
-        total as u64,
-        100.0 * f("env_steps") / total,
-        f("updates_per_s"),
-        f("env_steps_per_s"),
-        scores.join(" "),
-        p["best"].as_u64().unwrap_or(0),
-        f("policy_lag_mean"),
-    )
+    // The meter keeps the PROGRESS history its windowed rates and ETA need; supervise runs on
+    // one thread (a current-thread runtime), so a thread-local holds it without a new argument.
+    thread_local! {
+        static METER: std::cell::RefCell<crate::progress::ProgressMeter> =
+            std::cell::RefCell::new(crate::progress::ProgressMeter::new(crate::progress::WINDOW_S));
+    }
+    METER.with(|m| m.borrow_mut().line(p, elapsed))
 }
 
 #[cfg(test)]
