@@ -211,17 +211,18 @@ fn table(
 ) -> String {
     let with_success = results.iter().any(|r| r.evaluation.success_rate().is_finite());
     let mut out = format!(
-        "{}: env {}, {} deterministic episodes per actor ({})\n",
+        "{}: env {}, {} deterministic episode{} per actor ({})\n",
         checkpoint.display(),
         cfg.run.env,
         seeds.len(),
+        if seeds.len() == 1 { "" } else { "s" },
         if own_seeds {
             format!("seeds {}…", seeds[0])
         } else {
             "fresh seeds, none played in training".into()
         }
     );
-    out += &format!("{:<7} {:>22}", "actor", "return (mean ± std)");
+    out += &format!("{:<9} {:>22}", "actor", "return (mean ± std)");
     if with_success {
         out += &format!(" {:>8}", "success");
     }
@@ -235,7 +236,7 @@ fn table(
             format!("{:.1}", e.mean_return())
         };
         let name = format!("{}{}", r.actor, if r.actor == best { " (best)" } else { "" });
-        out += &format!("{name:<7} {ret:>22}");
+        out += &format!("{name:<9} {ret:>22}");
         if with_success {
             out += &format!(" {:>7.0}%", 100.0 * e.success_rate());
         }
