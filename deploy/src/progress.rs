@@ -96,7 +96,8 @@ impl ProgressMeter {
             duration(elapsed.as_secs_f64()),
             sample.env_steps as u64,
             total as u64,
-            100.0 * sample.env_steps / total,
+            // The last round may pass the budget by up to K − 1 steps.
+            (100.0 * sample.env_steps / total).min(100.0),
             updates_per_s,
             steps_per_s,
             p["best"].as_u64().unwrap_or(0),
