@@ -40,7 +40,11 @@ fn resolve(args: &ConfigArgs) -> Result<(Config, String)> {
             "configs/quick.toml (selkd train's default)".to_string(),
         ),
         Some(p) => {
-            let file = if p.is_dir() { p.join("config.toml") } else { p.clone() };
+            let file = if p.is_dir() {
+                p.join("config.toml")
+            } else {
+                p.clone()
+            };
             if p.is_dir() && !file.exists() {
                 bail!(
                     "{} is a directory without config.toml; pass a config file or a run directory",
@@ -48,7 +52,10 @@ fn resolve(args: &ConfigArgs) -> Result<(Config, String)> {
                 );
             }
             let text = std::fs::read_to_string(&file).with_context(|| {
-                format!("reading config {} (pass an existing config file or run directory)", file.display())
+                format!(
+                    "reading config {} (pass an existing config file or run directory)",
+                    file.display()
+                )
             })?;
             (text, file.display().to_string())
         }
@@ -143,13 +150,19 @@ mod tests {
             defaults: true,
         };
         let (cfg, _) = resolve(&args).unwrap();
-        assert_eq!((cfg.algo.actors, cfg.algo.critics, cfg.algo.utd), (5, 10, 20));
+        assert_eq!(
+            (cfg.algo.actors, cfg.algo.critics, cfg.algo.utd),
+            (5, 10, 20)
+        );
         let (quick, _) = resolve(&ConfigArgs {
             defaults: false,
             ..args
         })
         .unwrap();
-        assert_eq!(quick.run.total_env_steps, 12_000, "configs/quick.toml's budget");
+        assert_eq!(
+            quick.run.total_env_steps, 12_000,
+            "configs/quick.toml's budget"
+        );
     }
 
     #[test]

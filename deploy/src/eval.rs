@@ -42,9 +42,10 @@ fn parse_actor(s: &str) -> Result<Which> {
     match s {
         "best" => Ok(Which::Best),
         "all" => Ok(Which::All),
-        _ => s.parse().map(Which::One).map_err(|_| {
-            anyhow!("--actor {s}: expected best, all or an actor index (0, 1, …)")
-        }),
+        _ => s
+            .parse()
+            .map(Which::One)
+            .map_err(|_| anyhow!("--actor {s}: expected best, all or an actor index (0, 1, …)")),
     }
 }
 
@@ -70,8 +71,8 @@ fn locate(path: &Path) -> Result<(PathBuf, Config)> {
         );
     };
     let state = checkpoint.join("state.json");
-    let text = std::fs::read_to_string(&state)
-        .with_context(|| format!("reading {}", state.display()))?;
+    let text =
+        std::fs::read_to_string(&state).with_context(|| format!("reading {}", state.display()))?;
     let value: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("parsing {}", state.display()))?;
     let cfg: Config = serde_json::from_value(value["config"].clone())
@@ -129,7 +130,10 @@ fn run_inner(args: EvalArgs) -> Result<()> {
         Which::One(i) => vec![i],
     };
     let seeds: Vec<u64> = (0..args.episodes as u64)
-        .map(|e| args.seed.map_or_else(|| fresh_seed(e), |s| s.wrapping_add(e)))
+        .map(|e| {
+            args.seed
+                .map_or_else(|| fresh_seed(e), |s| s.wrapping_add(e))
+        })
         .collect();
     let mut env = selkd_envs::make_with(&cfg.run.env, &cfg.env_options)
         .with_context(|| format!("making the run's env `{}`", cfg.run.env))?;
@@ -152,7 +156,14 @@ fn run_inner(args: EvalArgs) -> Result<()> {
     let text = if args.json {
         json(&checkpoint, &cfg, best.index, &seeds, &results) + "\n"
     } else {
-        table(&checkpoint, &cfg, best.index, &seeds, args.seed.is_some(), &results)
+        table(
+            &checkpoint,
+            &cfg,
+            best.index,
+            &seeds,
+            args.seed.is_some(),
+            &results,
+        )
     };
     // A closed pipe is not worth a panic.
     let _ = std::io::stdout().lock().write_all(text.as_bytes());
@@ -209,7 +220,9 @@ fn table(
     own_seeds: bool,
     results: &[ActorResult],
 ) -> String {
-    let with_success = results.iter().any(|r| r.evaluation.success_rate().is_finite());
+    let with_success = results
+        .iter()
+        .any(|r| r.evaluation.success_rate().is_finite());
     let mut out = format!(
         "{}: env {}, {} deterministic episode{} per actor ({})\n",
         checkpoint.display(),
@@ -235,7 +248,11 @@ fn table(
         } else {
             format!("{:.1}", e.mean_return())
         };
-        let name = format!("{}{}", r.actor, if r.actor == best { " (best)" } else { "" });
+        let name = format!(
+            "{}{}",
+            r.actor,
+            if r.actor == best { " (best)" } else { "" }
+        );
         out += &format!("{name:<9} {ret:>22}");
         if with_success {
             out += &format!(" {:>7.0}%", 100.0 * e.success_rate());

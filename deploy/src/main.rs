@@ -120,7 +120,11 @@ fn usage_error(e: clap::Error) -> ! {
         sub.push(first);
         // Commands with their own subcommands: `selkd experiment run`, `selkd bench env`.
         if matches!(first.as_str(), "experiment" | "bench") {
-            sub.extend(args.get(1).filter(|a| !a.starts_with('-')).map(String::as_str));
+            sub.extend(
+                args.get(1)
+                    .filter(|a| !a.starts_with('-'))
+                    .map(String::as_str),
+            );
         }
     }
     if e.kind() == ErrorKind::InvalidSubcommand {

@@ -184,7 +184,9 @@ mod tests {
              2,2000,2,-801.3,-977.9,-655.0\n\
              3,3000,2,-402.8,-530.1,-151.2\n",
         );
-        let svg = std::fs::read_to_string(run(std::slice::from_ref(&dir), None, Metric::Return).unwrap()).unwrap();
+        let svg =
+            std::fs::read_to_string(run(std::slice::from_ref(&dir), None, Metric::Return).unwrap())
+                .unwrap();
         let attr = |line: &str, name: &str| -> f64 {
             let at = line.find(&format!(" {name}=\"")).unwrap() + name.len() + 3;
             line[at..].split('"').next().unwrap().parse().unwrap()
@@ -193,14 +195,27 @@ mod tests {
         let ticks: Vec<f64> = svg
             .lines()
             .filter(|l| l.contains(r#"text-anchor="end">"#))
-            .map(|l| l.rsplit("\">").next().unwrap().trim_end_matches("</text>").parse().unwrap())
+            .map(|l| {
+                l.rsplit("\">")
+                    .next()
+                    .unwrap()
+                    .trim_end_matches("</text>")
+                    .parse()
+                    .unwrap()
+            })
             .collect();
         assert!(ticks.len() >= 4, "{ticks:?}");
         let step = (ticks[1] - ticks[0]).abs();
         let mantissa = step / 10f64.powf(step.log10().floor());
-        assert!([1.0, 2.0, 5.0].iter().any(|m| (m - mantissa).abs() < 1e-9), "step {step}");
+        assert!(
+            [1.0, 2.0, 5.0].iter().any(|m| (m - mantissa).abs() < 1e-9),
+            "step {step}"
+        );
         for t in &ticks {
-            assert!((t / step - (t / step).round()).abs() < 1e-9, "{t} is not a multiple of {step}");
+            assert!(
+                (t / step - (t / step).round()).abs() < 1e-9,
+                "{t} is not a multiple of {step}"
+            );
         }
         assert!(ticks.iter().cloned().fold(f64::MAX, f64::min) <= -1311.7);
         assert!(ticks.iter().cloned().fold(f64::MIN, f64::max) >= -151.2);
@@ -212,7 +227,10 @@ mod tests {
             .map(|l| attr(l, "y1"))
             .collect();
         assert_eq!(legend.len(), 4, "{svg}");
-        assert!(legend.iter().all(|&y| y > 0.0 && y + 10.0 <= height), "{legend:?} in {height}");
+        assert!(
+            legend.iter().all(|&y| y > 0.0 && y + 10.0 <= height),
+            "{legend:?} in {height}"
+        );
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -108,8 +108,11 @@ impl ProgressMeter {
 
 /// A per-actor array of numbers or nulls; `None` when absent.
 fn per_actor(v: &Value) -> Option<Vec<Option<f64>>> {
-    v.as_array()
-        .map(|a| a.iter().map(|s| s.as_f64().filter(|x| x.is_finite())).collect())
+    v.as_array().map(|a| {
+        a.iter()
+            .map(|s| s.as_f64().filter(|x| x.is_finite()))
+            .collect()
+    })
 }
 
 /// A score with three significant figures at most and never `-0`: small returns (the assembly

@@ -645,7 +645,10 @@ mod tests {
         // directory no longer counts as holding a run.
         let said = root.join("said");
         logs(&said, "learner: error: resuming from X: HeaderTooSmall\n");
-        assert!(!holds_run(&said), "an empty checkpoints/ is no run: a retry may use the directory");
+        assert!(
+            !holds_run(&said),
+            "an empty checkpoints/ is no run: a retry may use the directory"
+        );
         tidy_failed_start(&said, true);
         assert!(said.join("logs/learner.log").exists() && !said.join("checkpoints").exists());
         assert!(!holds_run(&said));

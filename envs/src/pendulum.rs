@@ -226,7 +226,11 @@ mod tests {
                 }
                 close(out.reward, f(&r["rewards"][t]), "trajectory reward");
                 assert_eq!(out.truncated, t == 199, "truncation at step {t}");
-                assert_eq!(Some(out.truncated), r["truncated"][t].as_bool(), "Gymnasium's TimeLimit");
+                assert_eq!(
+                    Some(out.truncated),
+                    r["truncated"][t].as_bool(),
+                    "Gymnasium's TimeLimit"
+                );
                 assert!(!out.terminated);
             }
         }

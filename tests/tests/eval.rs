@@ -68,7 +68,12 @@ fn mean_action(t: &HashMap<String, (Vec<usize>, Vec<f32>)>, i: usize, obs: &[f32
         let w = &w[i * n_in * n_out..(i + 1) * n_in * n_out];
         let b = &b[i * n_out..(i + 1) * n_out];
         let mut y: Vec<f64> = (0..n_out)
-            .map(|o| b[o] as f64 + (0..n_in).map(|k| x[k] * w[k * n_out + o] as f64).sum::<f64>())
+            .map(|o| {
+                b[o] as f64
+                    + (0..n_in)
+                        .map(|k| x[k] * w[k * n_out + o] as f64)
+                        .sum::<f64>()
+            })
             .collect();
         l += 1;
         if t.contains_key(&format!("actors.{l}.weight")) {
@@ -185,13 +190,29 @@ fn eval_reports_every_actor_on_the_runs_env_and_matches_an_independent_evaluatio
     let best = eval_json(&[run_arg, "--episodes", "3", "--json"]);
     assert_eq!(best["actors"].as_array().unwrap().len(), 1);
     assert_eq!(best["actors"][0], actors[want_best]);
-    let seeded = eval_json(&[run_arg, "--actor", "1", "--episodes", "3", "--seed", "7", "--json"]);
+    let seeded = eval_json(&[
+        run_arg,
+        "--actor",
+        "1",
+        "--episodes",
+        "3",
+        "--seed",
+        "7",
+        "--json",
+    ]);
     assert_eq!(seeded["seeds"], serde_json::json!([7, 8, 9]));
     assert_eq!(seeded["actors"][0]["actor"], 1);
     assert_ne!(seeded["actors"][0]["returns"], actors[1]["returns"]);
     // A checkpoint directory works as well as the run directory.
     let ckpt = run_dir.join("checkpoints/final");
-    let from_ckpt = eval_json(&[ckpt.to_str().unwrap(), "--actor", "all", "--episodes", "3", "--json"]);
+    let from_ckpt = eval_json(&[
+        ckpt.to_str().unwrap(),
+        "--actor",
+        "all",
+        "--episodes",
+        "3",
+        "--json",
+    ]);
     assert_eq!(from_ckpt["actors"], all["actors"]);
 
     // The table: a row per actor, the best marked.
@@ -203,24 +224,40 @@ fn eval_reports_every_actor_on_the_runs_env_and_matches_an_independent_evaluatio
         .filter(|l| l.starts_with(|c: char| c.is_ascii_digit()))
         .collect();
     assert_eq!(rows.len(), 3, "{table}");
-    assert!(rows.iter().all(|r| r.contains(" ± ")), "mean ± std with 2 episodes: {table}");
+    assert!(
+        rows.iter().all(|r| r.contains(" ± ")),
+        "mean ± std with 2 episodes: {table}"
+    );
     assert!(table.contains(&format!("{want_best} (best)")), "{table}");
 
     // Bad input: exit 2, one line, saying what to change.
     let model = ckpt.join("model.safetensors");
     for (args, says) in [
         (vec![run_arg, "--actor", "7"], "the checkpoint has 3 actors"),
-        (vec![run_arg, "--actor", "worst"], "best, all or an actor index"),
-        (vec![run_arg, "--episodes", "0"], "--episodes must be at least 1"),
+        (
+            vec![run_arg, "--actor", "worst"],
+            "best, all or an actor index",
+        ),
+        (
+            vec![run_arg, "--episodes", "0"],
+            "--episodes must be at least 1",
+        ),
         (vec!["/no/such/run"], "no such run or checkpoint directory"),
-        (vec![model.to_str().unwrap()], "pass its checkpoint directory"),
+        (
+            vec![model.to_str().unwrap()],
+            "pass its checkpoint directory",
+        ),
         (vec![dir.to_str().unwrap()], "neither a run directory"),
     ] {
         let out = eval(&args);
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
         assert!(err.contains(says), "{args:?}: {err}");
-        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: one line: {err}");
+        assert_eq!(
+            err.trim_end().lines().count(),
+            1,
+            "{args:?}: one line: {err}"
+        );
         assert!(out.stdout.is_empty());
     }
     let _ = std::fs::remove_dir_all(&dir);

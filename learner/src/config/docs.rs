@@ -86,7 +86,10 @@ mod tests {
             assert!(doc(k).is_some(), "config key {k} has no line in KEY_DOCS");
         }
         for (k, d) in KEY_DOCS {
-            assert!(keys.contains(&k.to_string()), "KEY_DOCS names {k}, which Config does not have");
+            assert!(
+                keys.contains(&k.to_string()),
+                "KEY_DOCS names {k}, which Config does not have"
+            );
             assert!(!d.is_empty() && !d.contains('\n'), "{k}: one line");
         }
         let mut unique: Vec<&str> = KEY_DOCS.iter().map(|(k, _)| *k).collect();
