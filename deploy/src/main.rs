@@ -8,8 +8,11 @@
 //! everything cleanly on Ctrl-C or when the env-step budget is reached.
 
 mod bench;
+mod config_cmd;
+mod eval;
 mod experiment;
 mod plot;
+mod progress;
 mod raycast;
 mod render;
 mod report;
@@ -42,6 +45,10 @@ enum Command {
         #[arg(long, value_enum, default_value = "return")]
         metric: plot::Metric,
     },
+    /// Print the resolved config: every key, its value and what it does (TOML).
+    Config(config_cmd::ConfigArgs),
+    /// Evaluate a run's actors: mean ± std return (and success rate) of the deterministic policy.
+    Eval(eval::EvalArgs),
     /// Draw one episode of a trained actor (or of random actions) to a GIF or a PNG strip.
     Render(render::RenderArgs),
     /// Experiments: every (method, task, seed) of an experiment file (experiments/*.toml).
@@ -55,11 +62,16 @@ enum Command {
 fn main() {
     // Before anything else: it may execute selkd again (its children inherit the setting).
     selkd_learner::passive_openmp();
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => usage_error(e),
+    };
     let result = match cli.command {
         Command::Train(args) => train::run(args),
         Command::Experiment(e) => experiment::run(e),
         Command::Bench(b) => bench::run(b).map(|()| 0),
+        Command::Config(args) => config_cmd::run(args).map(|()| 0),
+        Command::Eval(args) => eval::run(args).map(|()| 0),
         Command::Render(args) => render::run(args).map(|()| 0),
         Command::Plot { runs, out, metric } => plot::run(&runs, out, metric).map(|p| {
             eprintln!("selkd: wrote {}", p.display());
@@ -73,4 +85,58 @@ fn main() {
             std::process::exit(2);
         }
     }
+}
+
+/// Help and version print as clap writes them; a usage error is one line (clap's own message,
+/// without its usage block), pointing at `--help`, and exits 2.
+fn usage_error(e: clap::Error) -> ! {
+    use clap::error::ErrorKind;
+    if matches!(
+        e.kind(),
+        ErrorKind::DisplayHelp
+            | ErrorKind::DisplayVersion
+            | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+    ) {
+        e.exit();
+    }
+    let text = e.render().to_string();
+    // clap's message is its first line, or (for "… not provided:") that line and the indented
+    // names below it.
+    let mut lines = text.lines();
+    let mut first = lines
+        .next()
+        .unwrap_or("bad arguments")
+        .trim_start_matches("error: ")
+        .to_string();
+    if first.ends_with(':') {
+        let names: Vec<&str> = lines
+            .take_while(|l| !l.trim().is_empty())
+            .map(str::trim)
+            .collect();
+        first = format!("{first} {}", names.join(", "));
+    }
+    // The subcommand the user typed, so the hint names its help.
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut sub: Vec<&str> = vec![];
+    if let Some(first) = args.first().filter(|a| !a.starts_with('-')) {
+        sub.push(first);
+        // Commands with their own subcommands: `selkd experiment run`, `selkd bench env`.
+        if matches!(first.as_str(), "experiment" | "bench") {
+            sub.extend(
+                args.get(1)
+                    .filter(|a| !a.starts_with('-'))
+                    .map(String::as_str),
+            );
+        }
+    }
+    if e.kind() == ErrorKind::InvalidSubcommand {
+        sub.clear();
+    }
+    let help = if sub.is_empty() {
+        "selkd --help".to_string()
+    } else {
+        format!("selkd {} --help", sub.join(" "))
+    };
+    eprintln!("selkd: error: {first} (see `{help}`)");
+    std::process::exit(2);
 }

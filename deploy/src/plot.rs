@@ -173,6 +173,67 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
     }
 
+    /// Returns such as -1234.5 … -151.2 get ticks at round values (multiples of 1, 2 or 5 × 10^k)
+    /// and every legend entry lies inside the picture.
+    #[test]
+    fn return_ticks_are_round_and_the_legend_is_inside_the_picture() {
+        let dir = run_dir(
+            "ticks",
+            "epoch,env_steps,best,eval_return_0,eval_return_1,eval_return_2\n\
+             1,1000,0,-1234.5,-1311.7,-1290.2\n\
+             2,2000,2,-801.3,-977.9,-655.0\n\
+             3,3000,2,-402.8,-530.1,-151.2\n",
+        );
+        let svg =
+            std::fs::read_to_string(run(std::slice::from_ref(&dir), None, Metric::Return).unwrap())
+                .unwrap();
+        let attr = |line: &str, name: &str| -> f64 {
+            let at = line.find(&format!(" {name}=\"")).unwrap() + name.len() + 3;
+            line[at..].split('"').next().unwrap().parse().unwrap()
+        };
+        // Y tick labels: right-aligned texts left of the plot area.
+        let ticks: Vec<f64> = svg
+            .lines()
+            .filter(|l| l.contains(r#"text-anchor="end">"#))
+            .map(|l| {
+                l.rsplit("\">")
+                    .next()
+                    .unwrap()
+                    .trim_end_matches("</text>")
+                    .parse()
+                    .unwrap()
+            })
+            .collect();
+        assert!(ticks.len() >= 4, "{ticks:?}");
+        let step = (ticks[1] - ticks[0]).abs();
+        let mantissa = step / 10f64.powf(step.log10().floor());
+        assert!(
+            [1.0, 2.0, 5.0].iter().any(|m| (m - mantissa).abs() < 1e-9),
+            "step {step}"
+        );
+        for t in &ticks {
+            assert!(
+                (t / step - (t / step).round()).abs() < 1e-9,
+                "{t} is not a multiple of {step}"
+            );
+        }
+        assert!(ticks.iter().cloned().fold(f64::MAX, f64::min) <= -1311.7);
+        assert!(ticks.iter().cloned().fold(f64::MIN, f64::max) >= -151.2);
+        // The legend: one entry per actor plus the ranked actor, all within the picture's height.
+        let height = attr(svg.lines().next().unwrap(), "height");
+        let legend: Vec<f64> = svg
+            .lines()
+            .filter(|l| l.starts_with("<line") && l.contains("<text") && !l.contains("text-anchor"))
+            .map(|l| attr(l, "y1"))
+            .collect();
+        assert_eq!(legend.len(), 4, "{svg}");
+        assert!(
+            legend.iter().all(|&y| y > 0.0 && y + 10.0 <= height),
+            "{legend:?} in {height}"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     #[test]
     fn a_task_without_success_says_so() {
         let dir = run_dir(

@@ -27,7 +27,7 @@ macro_rules! sayp {
 }
 
 /// The quick default: learning on Pendulum within a few minutes on 2 cores.
-const QUICK_CONFIG: &str = include_str!("../../configs/quick.toml");
+pub(crate) const QUICK_CONFIG: &str = include_str!("../../configs/quick.toml");
 
 #[derive(Args, Debug)]
 pub struct TrainArgs {
@@ -166,13 +166,12 @@ pub fn run(mut args: TrainArgs) -> Result<i32> {
             })?,
         (None, None) => PathBuf::from("runs").join(format!("{}-{stamp}", cfg.run.env)),
     };
+    let created = !run_dir.exists();
     std::fs::create_dir_all(run_dir.join("logs"))
         .with_context(|| format!("creating run directory {}", run_dir.display()))?;
     // One launcher per run directory; the lock goes with the process, so a dead holder's is free.
     let _lock = lock_run_dir(&run_dir)?;
-    if args.resume.is_none()
-        && (run_dir.join("metrics.csv").exists() || run_dir.join("checkpoints").exists())
-    {
+    if args.resume.is_none() && holds_run(&run_dir) {
         bail!(
             "run directory {} already holds a run; continue it with --resume {}/checkpoints/final (or the one `checkpoints/latest` names), or choose another --run-dir",
             run_dir.display(),
@@ -199,14 +198,49 @@ pub fn run(mut args: TrainArgs) -> Result<i32> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
-    rt.block_on(supervise(
+    let result = rt.block_on(supervise(
         &args,
         &cfg,
         &run_dir,
         &run_id,
         &learner_bin,
         &worker_bin,
-    ))
+    ));
+    if !matches!(result, Ok(0)) {
+        tidy_failed_start(&run_dir, created);
+    }
+    result
+}
+
+/// Whether `dir` holds a run to continue rather than start: epochs logged or a checkpoint
+/// written (an empty `checkpoints/`, which a learner that failed at start leaves, is none).
+fn holds_run(dir: &Path) -> bool {
+    let checkpoints = dir.join("checkpoints");
+    dir.join("metrics.csv").exists()
+        || checkpoints.join("latest").exists()
+        || std::fs::read_dir(&checkpoints).is_ok_and(|entries| {
+            entries
+                .filter_map(|e| e.ok())
+                .any(|e| e.path().join("state.json").exists())
+        })
+}
+
+/// After a run that failed before it held anything: drop the empty `checkpoints/` it left, and
+/// the whole directory if this start created it and no log says anything (a directory that
+/// does hold a log keeps it: the failure message points there).
+fn tidy_failed_start(run_dir: &Path, created: bool) {
+    if holds_run(run_dir) {
+        return;
+    }
+    let _ = std::fs::remove_dir(run_dir.join("checkpoints")); // only if empty
+    let logs_say_nothing = std::fs::read_dir(run_dir.join("logs")).is_ok_and(|entries| {
+        entries
+            .filter_map(|e| e.ok())
+            .all(|e| e.metadata().is_ok_and(|m| m.is_file() && m.len() == 0))
+    });
+    if created && logs_say_nothing {
+        let _ = std::fs::remove_dir_all(run_dir);
+    }
 }
 
 /// The checkpoint `--resume` names: a checkpoint directory, or a run directory (its latest one).
@@ -584,33 +618,60 @@ fn is_zombie(pid: u32) -> bool {
 }
 
 fn progress_line(p: &serde_json::Value, elapsed: Duration) -> String {
-    let f = |k: &str| p[k].as_f64().unwrap_or(0.0);
-    let scores: Vec<String> = p["scores"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .map(|s| s.as_f64().map_or("–".into(), |v| format!("{v:.0}")))
-                .collect()
-        })
-        .unwrap_or_default();
-    let total = f("total_env_steps").max(1.0);
-    format!(
-        "[{:>6.0}s] env steps {}/{} ({:.0}%) | {:.0} updates/s | {:.0} env steps/s | scores [{}] | best {} | lag {:.1}",
-        elapsed.as_secs_f64(),
-        f("env_steps") as u64,
-        total as u64,
-        100.0 * f("env_steps") / total,
-        f("updates_per_s"),
-        f("env_steps_per_s"),
-        scores.join(" "),
-        p["best"].as_u64().unwrap_or(0),
-        f("policy_lag_mean"),
-    )
+    // The meter keeps the PROGRESS history its windowed rates and ETA need; supervise runs on
+    // one thread (a current-thread runtime), so a thread-local holds it without a new argument.
+    thread_local! {
+        static METER: std::cell::RefCell<crate::progress::ProgressMeter> =
+            std::cell::RefCell::new(crate::progress::ProgressMeter::new(crate::progress::WINDOW_S));
+    }
+    METER.with(|m| m.borrow_mut().line(p, elapsed))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_failed_start_leaves_no_empty_run_directory_and_does_not_block_a_retry() {
+        let root = std::env::temp_dir().join(format!("selkd-failed-start-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let logs = |d: &Path, text: &str| {
+            std::fs::create_dir_all(d.join("logs")).unwrap();
+            std::fs::create_dir_all(d.join("checkpoints")).unwrap();
+            std::fs::write(d.join("config.toml"), "").unwrap();
+            std::fs::write(d.join("logs/worker-0.log"), "").unwrap();
+            std::fs::write(d.join("logs/learner.log"), text).unwrap();
+        };
+        // The learner said why it failed: its log stays, the empty checkpoints/ goes, and the
+        // directory no longer counts as holding a run.
+        let said = root.join("said");
+        logs(&said, "learner: error: resuming from X: HeaderTooSmall\n");
+        assert!(
+            !holds_run(&said),
+            "an empty checkpoints/ is no run: a retry may use the directory"
+        );
+        tidy_failed_start(&said, true);
+        assert!(said.join("logs/learner.log").exists() && !said.join("checkpoints").exists());
+        assert!(!holds_run(&said));
+        // Nothing was said, and this start made the directory: nothing is left.
+        let silent = root.join("silent");
+        logs(&silent, "");
+        tidy_failed_start(&silent, true);
+        assert!(!silent.exists());
+        // A directory the user had before is never removed.
+        let theirs = root.join("theirs");
+        logs(&theirs, "");
+        tidy_failed_start(&theirs, false);
+        assert!(theirs.join("config.toml").exists());
+        // A run with a checkpoint is left alone.
+        let real = root.join("real");
+        logs(&real, "");
+        std::fs::create_dir_all(real.join("checkpoints/final")).unwrap();
+        std::fs::write(real.join("checkpoints/final/state.json"), "{}").unwrap();
+        tidy_failed_start(&real, true);
+        assert!(holds_run(&real) && real.join("checkpoints/final/state.json").exists());
+        let _ = std::fs::remove_dir_all(&root);
+    }
 
     #[test]
     fn restarts_back_off_while_a_worker_keeps_dying_and_give_up_past_the_window_limit() {

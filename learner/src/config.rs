@@ -1,5 +1,7 @@
 //! The run configuration: data (TOML), validated once at the edge with errors that say what to change.
 
+pub mod docs;
+
 use crate::targets::Formation;
 use serde::{Deserialize, Serialize};
 

@@ -1,0 +1,284 @@
+//! `selkd eval RUN|CHECKPOINT`: the deterministic policy (`tanh(μ)`) of a checkpoint's actors
+//! on the run's env and `[env_options]`, a few episodes each: mean ± std return, and the success
+//! rate on tasks that have one. A table, or JSON with `--json`.
+//!
+//! Episodes use the re-evaluation seeds `selkd experiment report` uses (`fresh_seed`), none of
+//! which any in-run evaluation played, unless `--seed S` asks for `S, S + 1, …`.
+
+use anyhow::{anyhow, bail, Context, Result};
+use clap::Args;
+use selkd_learner::checkpoint::load_actor;
+use selkd_learner::config::Config;
+use selkd_policy::evaluation::{evaluate, fresh_seed, Evaluation};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+#[derive(Args, Debug)]
+pub struct EvalArgs {
+    /// A run directory (its latest checkpoint) or a checkpoint directory (RUN/checkpoints/NAME).
+    path: PathBuf,
+    /// Which actor: `best` (by the checkpoint's ranking), `all`, or an index.
+    #[arg(long, default_value = "best")]
+    actor: String,
+    /// Episodes per actor.
+    #[arg(long, default_value_t = 10)]
+    episodes: usize,
+    /// Play seeds S, S + 1, … (default: the fresh re-evaluation seeds no training run played).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// JSON on stdout instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Which {
+    Best,
+    All,
+    One(usize),
+}
+
+fn parse_actor(s: &str) -> Result<Which> {
+    match s {
+        "best" => Ok(Which::Best),
+        "all" => Ok(Which::All),
+        _ => s
+            .parse()
+            .map(Which::One)
+            .map_err(|_| anyhow!("--actor {s}: expected best, all or an actor index (0, 1, …)")),
+    }
+}
+
+/// The checkpoint directory `path` names, and the run's config.
+fn locate(path: &Path) -> Result<(PathBuf, Config)> {
+    if path.is_file() {
+        bail!(
+            "{}: a bare file carries no env or config; pass its checkpoint directory (RUN/checkpoints/NAME) or the run directory",
+            path.display()
+        );
+    }
+    if !path.exists() {
+        bail!("{}: no such run or checkpoint directory", path.display());
+    }
+    let checkpoint = if path.join("state.json").exists() {
+        path.to_path_buf()
+    } else if path.join("config.toml").exists() {
+        latest_checkpoint(path)?
+    } else {
+        bail!(
+            "{}: neither a run directory (config.toml) nor a checkpoint directory (state.json)",
+            path.display()
+        );
+    };
+    let state = checkpoint.join("state.json");
+    let text =
+        std::fs::read_to_string(&state).with_context(|| format!("reading {}", state.display()))?;
+    let value: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("parsing {}", state.display()))?;
+    let cfg: Config = serde_json::from_value(value["config"].clone())
+        .with_context(|| format!("reading the config in {}", state.display()))?;
+    Ok((checkpoint, cfg))
+}
+
+/// The checkpoint a run's `checkpoints/latest` names, else its `final`.
+fn latest_checkpoint(run: &Path) -> Result<PathBuf> {
+    let dir = run.join("checkpoints");
+    let named = std::fs::read_to_string(dir.join("latest"))
+        .ok()
+        .map(|n| dir.join(n.trim()));
+    for c in named.into_iter().chain([dir.join("final")]) {
+        if c.join("state.json").exists() {
+            return Ok(c);
+        }
+    }
+    bail!(
+        "{}: the run has no checkpoint yet (no checkpoints/latest or checkpoints/final); let it write one (run.checkpoint_every) or wait for it to finish",
+        run.display()
+    )
+}
+
+/// One actor's episodes.
+struct ActorResult {
+    actor: usize,
+    evaluation: Evaluation,
+}
+
+/// Sample standard deviation (n − 1), NaN for fewer than two values: what the reports use.
+fn sample_std(v: &[f64]) -> f64 {
+    if v.len() < 2 {
+        return f64::NAN;
+    }
+    let mean = v.iter().sum::<f64>() / v.len() as f64;
+    (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt()
+}
+
+pub fn run(args: EvalArgs) -> Result<()> {
+    // Every error is one line that says what to change.
+    run_inner(args).map_err(|e| anyhow!("{}", format!("{e:#}").replace('\n', " ")))
+}
+
+fn run_inner(args: EvalArgs) -> Result<()> {
+    let which = parse_actor(&args.actor)?;
+    if args.episodes == 0 {
+        bail!("--episodes must be at least 1");
+    }
+    let (checkpoint, cfg) = locate(&args.path)?;
+    let best = load_actor(&checkpoint, None)?;
+    let indices: Vec<usize> = match which {
+        Which::Best => vec![best.index],
+        Which::All => (0..best.actors).collect(),
+        Which::One(i) => vec![i],
+    };
+    let seeds: Vec<u64> = (0..args.episodes as u64)
+        .map(|e| {
+            args.seed
+                .map_or_else(|| fresh_seed(e), |s| s.wrapping_add(e))
+        })
+        .collect();
+    let mut env = selkd_envs::make_with(&cfg.run.env, &cfg.env_options)
+        .with_context(|| format!("making the run's env `{}`", cfg.run.env))?;
+    let mut results = vec![];
+    for &i in &indices {
+        let loaded = load_actor(&checkpoint, Some(i))?;
+        let layout = loaded.actor.layout();
+        let spec = env.spec();
+        if layout.obs_dim != spec.obs_dim || layout.act_dim != spec.act_dim {
+            bail!(
+                "the checkpoint's actor takes {} observations and gives {} actions, but the run's env `{}` has {} and {}",
+                layout.obs_dim, layout.act_dim, spec.id, spec.obs_dim, spec.act_dim
+            );
+        }
+        results.push(ActorResult {
+            actor: i,
+            evaluation: evaluate(env.as_mut(), &loaded.actor, seeds.iter().copied()),
+        });
+    }
+    let text = if args.json {
+        json(&checkpoint, &cfg, best.index, &seeds, &results) + "\n"
+    } else {
+        table(
+            &checkpoint,
+            &cfg,
+            best.index,
+            &seeds,
+            args.seed.is_some(),
+            &results,
+        )
+    };
+    // A closed pipe is not worth a panic.
+    let _ = std::io::stdout().lock().write_all(text.as_bytes());
+    Ok(())
+}
+
+fn finite(v: f64) -> serde_json::Value {
+    if v.is_finite() {
+        v.into()
+    } else {
+        serde_json::Value::Null
+    }
+}
+
+fn json(
+    checkpoint: &Path,
+    cfg: &Config,
+    best: usize,
+    seeds: &[u64],
+    results: &[ActorResult],
+) -> String {
+    let actors: Vec<serde_json::Value> = results
+        .iter()
+        .map(|r| {
+            let e = &r.evaluation;
+            serde_json::json!({
+                "actor": r.actor,
+                "best": r.actor == best,
+                "mean_return": finite(e.mean_return()),
+                "std_return": finite(sample_std(&e.returns)),
+                "success_rate": finite(e.success_rate()),
+                "returns": e.returns,
+                "successes": e.successes,
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "checkpoint": checkpoint.display().to_string(),
+        "env": cfg.run.env,
+        "env_options": cfg.env_options,
+        "episodes": seeds.len(),
+        "seeds": seeds,
+        "best": best,
+        "actors": actors,
+    })
+    .to_string()
+}
+
+fn table(
+    checkpoint: &Path,
+    cfg: &Config,
+    best: usize,
+    seeds: &[u64],
+    own_seeds: bool,
+    results: &[ActorResult],
+) -> String {
+    let with_success = results
+        .iter()
+        .any(|r| r.evaluation.success_rate().is_finite());
+    let mut out = format!(
+        "{}: env {}, {} deterministic episode{} per actor ({})\n",
+        checkpoint.display(),
+        cfg.run.env,
+        seeds.len(),
+        if seeds.len() == 1 { "" } else { "s" },
+        if own_seeds {
+            format!("seeds {}…", seeds[0])
+        } else {
+            "fresh seeds, none played in training".into()
+        }
+    );
+    out += &format!("{:<9} {:>22}", "actor", "return (mean ± std)");
+    if with_success {
+        out += &format!(" {:>8}", "success");
+    }
+    out += "\n";
+    for r in results {
+        let e = &r.evaluation;
+        let std = sample_std(&e.returns);
+        let ret = if std.is_finite() {
+            format!("{:.1} ± {:.1}", e.mean_return(), std)
+        } else {
+            format!("{:.1}", e.mean_return())
+        };
+        let name = format!(
+            "{}{}",
+            r.actor,
+            if r.actor == best { " (best)" } else { "" }
+        );
+        out += &format!("{name:<9} {ret:>22}");
+        if with_success {
+            out += &format!(" {:>7.0}%", 100.0 * e.success_rate());
+        }
+        out += "\n";
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn actor_choices_parse_and_bad_ones_say_what_is_expected() {
+        assert_eq!(parse_actor("best").unwrap(), Which::Best);
+        assert_eq!(parse_actor("all").unwrap(), Which::All);
+        assert_eq!(parse_actor("3").unwrap(), Which::One(3));
+        let e = parse_actor("worst").unwrap_err().to_string();
+        assert!(e.contains("best, all or an actor index"), "{e}");
+    }
+
+    #[test]
+    fn std_is_the_sample_one() {
+        // Values 1, 2, 3, 4: mean 2.5, squared deviations 5, divisor 3.
+        assert!((sample_std(&[1.0, 2.0, 3.0, 4.0]) - (5.0f64 / 3.0).sqrt()).abs() < 1e-12);
+        assert!(sample_std(&[1.0]).is_nan());
+    }
+}
