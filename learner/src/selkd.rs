@@ -345,11 +345,12 @@ impl Selkd {
             .select(&Tensor::from_slice(&reference).to_device(self.device))
             .forward(s);
         let (mu_best, log_std_best) = split_head(&best_head);
-        // SAC: KL of the two policies; TD3: squared distance of the two deterministic actions.
+        // SAC: KL of the two policies; TD3: mean-squared distance of the two deterministic
+        // actions (SPEC, TD3 backbone: the mean over action dimensions).
         let kl = if td3 {
             (&a - mu_best.tanh())
                 .square()
-                .sum_dim_intlist(-1, false, Kind::Float)
+                .mean_dim(-1, false, Kind::Float)
         } else {
             gaussian_kl(&mu, &log_std, &mu_best, &log_std_best)
         };
@@ -709,7 +710,7 @@ mod tests {
         check_distillation(Backbone::Sac);
     }
 
-    /// TD3 backbone: KD is the squared distance to the best actor's deterministic action.
+    /// TD3 backbone: KD is the mean-squared distance to the best actor's deterministic action.
     #[test]
     fn td3_distillation_pulls_actions_toward_the_best() {
         check_distillation(Backbone::Td3);
