@@ -51,6 +51,21 @@ pub struct Selkd {
     pub rng: Pcg64,
     pub critic_updates: u64,
     pub actor_updates: u64,
+    /// Off (`None`) in training. When `Some`, every random draw is appended to it, so that a test
+    /// can replay the same rounds in an independent implementation (`learner/tests/crosscheck.rs`).
+    pub draws: Option<Vec<Draw>>,
+}
+
+/// One random draw of the learner, in the order it was drawn.
+pub enum Draw {
+    /// A critic update's mini-batch (`groups` × B rows) and subsets (`groups` × M indices).
+    CriticBatch(Batch, Vec<i64>),
+    /// The actor update's mini-batch, K × B rows (row block i for actor i).
+    ActorBatch(Batch),
+    /// Standard normal noise, in the shape it was used.
+    Normal(Tensor),
+    /// REM's mixture draws `[G, M]`, before normalisation.
+    Uniform(Tensor),
 }
 
 /// What one round measured, for metrics.
@@ -100,6 +115,7 @@ impl Selkd {
             rng,
             critic_updates: 0,
             actor_updates: 0,
+            draws: None,
         }
     }
 
@@ -133,6 +149,7 @@ impl Selkd {
                     .collect::<Vec<_>>()
             })
             .collect();
+        self.record(|| Draw::CriticBatch(batch.shallow_clone(), subsets.clone()));
         self.update_critics_on(&batch, &subsets)
     }
 
@@ -271,6 +288,7 @@ impl Selkd {
                 .map(|_| self.rng.gen_range(0.0f32..1.0))
                 .collect();
             let w = Tensor::from_slice(&w).view([g, m]).to_device(self.device);
+            self.record(|| Draw::Uniform(w.shallow_clone()));
             &w / w.sum_dim_intlist(1, true, Kind::Float)
         });
         let opts = InnerOptions {
@@ -297,6 +315,7 @@ impl Selkd {
             self.cfg.batch_size as i64,
         );
         let batch = replay.sample(self.cfg.actors, self.cfg.batch_size, &mut self.rng); // line 17
+        self.record(|| Draw::ActorBatch(batch.shallow_clone()));
         let s = &batch.obs;
         let (mu, log_std) = split_head(&self.actors.forward(s));
         let td3 = self.cfg.backbone == Backbone::Td3;
@@ -416,7 +435,16 @@ impl Selkd {
         let v: Vec<f32> = (0..count)
             .map(|_| StandardNormal.sample(&mut self.rng))
             .collect();
-        Tensor::from_slice(&v).view(shape).to_device(self.device)
+        let eps = Tensor::from_slice(&v).view(shape).to_device(self.device);
+        self.record(|| Draw::Normal(eps.shallow_clone()));
+        eps
+    }
+
+    /// Appends a draw when recording is on (see [`Selkd::draws`]).
+    fn record(&mut self, draw: impl FnOnce() -> Draw) {
+        if let Some(draws) = &mut self.draws {
+            draws.push(draw());
+        }
     }
 
     /// Actor `i`'s weights in the flat layout workers use.
