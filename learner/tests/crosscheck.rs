@@ -90,7 +90,11 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
             },
             [1, 2],
         ),
-        ("average-dqn (max-mean)", ensemble(Formation::MaxMean), [0, 0]),
+        (
+            "average-dqn (max-mean)",
+            ensemble(Formation::MaxMean),
+            [0, 0],
+        ),
         ("rem (max-rem)", ensemble(Formation::MaxRem), [0, 0]),
         (
             "aqe (max-aqe, drop 2 of 5)",
@@ -344,7 +348,10 @@ fn two_rounds_match_an_independent_pytorch_implementation() {
             dir.display(),
             String::from_utf8_lossy(&o.stderr)
         ),
-        Err(e) => panic!("python3 is needed for this test (it runs torch from {}): {e}", dir.display()),
+        Err(e) => panic!(
+            "python3 is needed for this test (it runs torch from {}): {e}",
+            dir.display()
+        ),
     }
     let cases: Vec<Value> = cases()
         .iter()
