@@ -308,7 +308,12 @@ impl Selkd {
     }
 
     /// Lines 16–20, all K actors at once, each on its own mini-batch.
-    fn update_actors(&mut self, replay: &mut ReplayBuffer, best: usize, stats: &mut RoundStats) {
+    pub fn update_actors(
+        &mut self,
+        replay: &mut ReplayBuffer,
+        best: usize,
+        stats: &mut RoundStats,
+    ) {
         let (k, n, b) = (
             self.cfg.actors as i64,
             self.cfg.critics as i64,

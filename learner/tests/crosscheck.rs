@@ -3,11 +3,14 @@
 //!
 //! For each configuration the learner runs two full rounds (G critic updates, then the actor and
 //! temperature update) with its draws recorded ([`Selkd::draws`]). The initial state, the draws,
-//! and the learner's state and statistics after each round go to the Python script, which trains
-//! its own networks from the same initial weights on the same draws and compares everything:
-//! critics, target critics, actors, target actors, every Adam moment and step, log α, and the
-//! reported losses. It also checks that training moved every network that had a loss, so that
-//! the comparison cannot pass vacuously.
+//! and the learner's state and reported losses after every update go to the Python script. It
+//! builds its own networks from the same initial weights and, update by update, starts from the
+//! learner's state before the update, performs the update on the same draws, and compares the
+//! result: critics, target critics, actors, target actors, every Adam moment and step, log α,
+//! and the reported losses. (Starting each update from the learner's state keeps float32
+//! round-off from compounding through Adam, which divides by √v and so magnifies the round-off
+//! of near-zero gradients; see the script's tolerances.) It also checks that training moved every
+//! network that had a loss, so that the comparison cannot pass vacuously.
 //!
 //! Python with torch is found where `deploy/setup.sh` installs it (`SELKD_CACHE`, else
 //! `XDG_CACHE_HOME/selkd`, else `~/.cache/selkd`, then `torch-2.11.0`). Every machine that runs
@@ -284,31 +287,56 @@ fn replay(seed: u64) -> ReplayBuffer {
     rb
 }
 
+/// Two rounds, driven one update at a time so that every update's result is recorded: per round,
+/// G critic updates and then the actor update, which is what `train_round` does (checked: a twin
+/// trained by `train_round` ends bit-identical, with the same statistics).
 fn run_case(name: &str, cfg: &AlgoConfig, best: [usize; 2], seed: u64) -> Value {
     let mut s = Selkd::new(cfg, OBS, ACT, Device::Cpu, seed);
     let mut rb = replay(seed + 100);
     let initial = state(&s);
-    let rounds: Vec<Value> = best
-        .iter()
-        .map(|&b| {
+    let mut updates = Vec::new();
+    let mut round_stats = Vec::new();
+    for &b in &best {
+        let mut st = RoundStats::default();
+        for _ in 0..cfg.utd {
             s.draws = Some(Vec::new());
-            let st = s.train_round(&mut rb, b);
-            let draws = s.draws.take().unwrap();
-            json!({
-                "best": b,
-                "draws": draws.iter().map(draw).collect::<Vec<_>>(),
-                "stats": stats(&st),
-                "state": state(&s),
-            })
-        })
-        .collect();
+            let (loss, q) = s.update_critics(&mut rb);
+            st.critic_loss += loss / cfg.utd as f64;
+            st.q_mean += q / cfg.utd as f64;
+            let draws: Vec<Value> = s.draws.take().unwrap().iter().map(draw).collect();
+            updates.push(json!({
+                "kind": "critic", "draws": draws, "loss": loss, "q_mean": q, "state": state(&s),
+            }));
+        }
+        s.draws = Some(Vec::new());
+        s.update_actors(&mut rb, b, &mut st);
+        let draws: Vec<Value> = s.draws.take().unwrap().iter().map(draw).collect();
+        updates.push(json!({
+            "kind": "actor", "best": b, "draws": draws, "stats": stats(&st), "state": state(&s),
+        }));
+        round_stats.push(stats(&st));
+    }
+    let mut twin = Selkd::new(cfg, OBS, ACT, Device::Cpu, seed);
+    let mut rb2 = replay(seed + 100);
+    for (r, &b) in best.iter().enumerate() {
+        let st = twin.train_round(&mut rb2, b);
+        assert_eq!(
+            stats(&st),
+            round_stats[r],
+            "{name}: train_round's statistics, round {r}"
+        );
+    }
+    assert!(
+        state(&twin) == state(&s),
+        "{name}: train_round is G critic updates, then the actor update"
+    );
     json!({
         "name": name,
         "cfg": serde_json::to_value(cfg).unwrap(),
         "obs_dim": OBS,
         "act_dim": ACT,
         "initial": initial,
-        "rounds": rounds,
+        "updates": updates,
     })
 }
 
@@ -353,17 +381,35 @@ fn two_rounds_match_an_independent_pytorch_implementation() {
             dir.display()
         ),
     }
-    let cases: Vec<Value> = cases()
-        .iter()
-        .enumerate()
-        .map(|(i, (name, cfg, best))| run_case(name, cfg, *best, 10 + i as u64))
-        .collect();
+    // SELKD_CROSSCHECK_SEEDS=S runs every case on S sets of seeds (draws and weights) instead of
+    // one, to soak the comparison's tolerances.
+    let seeds: u64 = std::env::var("SELKD_CROSSCHECK_SEEDS")
+        .map(|v| v.parse().expect("SELKD_CROSSCHECK_SEEDS is a count"))
+        .unwrap_or(1);
+    let started = std::time::Instant::now();
+    let mut cases_json = Vec::new();
+    for round in 0..seeds {
+        for (i, (name, cfg, best)) in cases().iter().enumerate() {
+            let name = if seeds > 1 {
+                format!("{name} (seed set {round})")
+            } else {
+                name.to_string()
+            };
+            cases_json.push(run_case(&name, cfg, *best, 10 + i as u64 + 1000 * round));
+        }
+    }
+    let cases = cases_json;
     let work = std::env::temp_dir().join(format!("selkd-crosscheck-{}", std::process::id()));
     std::fs::create_dir_all(&work).unwrap();
     let input = work.join("cases.json");
     std::fs::write(&input, serde_json::to_vec(&cases).unwrap()).unwrap();
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/crosscheck/round.py");
+    let learner_s = started.elapsed().as_secs_f64();
     let out = python().arg(&script).arg(&input).output().unwrap();
+    eprintln!(
+        "learner and JSON {learner_s:.1} s, PyTorch {:.1} s",
+        started.elapsed().as_secs_f64() - learner_s
+    );
     let _ = std::fs::remove_dir_all(&work);
     let report = String::from_utf8_lossy(&out.stdout);
     eprintln!("{report}{}", String::from_utf8_lossy(&out.stderr));
