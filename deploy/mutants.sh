@@ -8,7 +8,7 @@
 #
 #   deploy/mutants.sh                          # every file below (hours on 2 cores)
 #   deploy/mutants.sh learner/src/targets.rs   # just these files
-#   MUTANTS_ARGS="--re critic_target" deploy/mutants.sh learner/src/targets.rs   # more cargo-mutants flags
+#   deploy/mutants.sh learner/src/selkd.rs --re update_actors    # then cargo-mutants flags, as given
 #
 # It mutates the files in place (cargo-mutants puts each back after its mutant, and on Ctrl-C),
 # so it reuses this clone's release build instead of building a copy from scratch; it refuses to
@@ -31,7 +31,9 @@ if ! git diff --quiet HEAD -- learner/src; then
   exit 1
 fi
 
-files=("$@")
+# Arguments: files, then (from the first one starting with -) cargo-mutants flags, passed as given.
+files=()
+while [ $# -gt 0 ] && [ "${1#-}" = "$1" ]; do files+=("$1"); shift; done
 if [ ${#files[@]} -eq 0 ]; then
   files=(selkd targets distillation squashed_gaussian optim replay ranking rate_limit ensemble)
   files=("${files[@]/#/learner/src/}")
@@ -49,4 +51,4 @@ export CARGO_PROFILE_RELEASE_INCREMENTAL=true
 # shellcheck disable=SC2086 # MUTANTS_ARGS is a list of flags
 PATH="$tool/bin:$PATH" cargo mutants --package selkd-learner --profile release --jobs 1 \
   --in-place --timeout 300 --build-timeout 1200 --output "${MUTANTS_OUT:-target/mutants}" \
-  "${args[@]}" ${MUTANTS_ARGS:-}
+  "${args[@]}" ${MUTANTS_ARGS:-} "$@"
