@@ -42,13 +42,13 @@ fi
 args=()
 for f in "${files[@]}"; do args+=(--file "$f"); done
 
-# One job (2 cores); the release profile, as the tests run, with incremental compilation of the
+# One job at a time (--in-place allows no more; --jobs 1 in effect); the release profile, as the tests run, with incremental compilation of the
 # workspace's own crates: a mutant's rebuild then takes about 30 s instead of 90 (the first run
 # rebuilds the workspace crates once, and so does the next build without it). A mutant whose
 # tests run past the timeout (an endless loop) counts as caught by timeout. MUTANTS_OUT picks
 # another results folder (to keep several readings).
 export CARGO_PROFILE_RELEASE_INCREMENTAL=true
 # shellcheck disable=SC2086 # MUTANTS_ARGS is a list of flags
-PATH="$tool/bin:$PATH" cargo mutants --package selkd-learner --profile release --jobs 1 \
+PATH="$tool/bin:$PATH" cargo mutants --package selkd-learner --profile release \
   --in-place --timeout 300 --build-timeout 1200 --output "${MUTANTS_OUT:-target/mutants}" \
   "${args[@]}" ${MUTANTS_ARGS:-} "$@"
