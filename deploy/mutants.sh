@@ -48,7 +48,9 @@ for f in "${files[@]}"; do args+=(--file "$f"); done
 # tests run past the timeout (an endless loop) counts as caught by timeout. MUTANTS_OUT picks
 # another results folder (to keep several readings).
 export CARGO_PROFILE_RELEASE_INCREMENTAL=true
+out=${MUTANTS_OUT:-target/mutants}
+mkdir -p "$out"
 # shellcheck disable=SC2086 # MUTANTS_ARGS is a list of flags
 PATH="$tool/bin:$PATH" cargo mutants --package selkd-learner --profile release \
-  --in-place --timeout 300 --build-timeout 1200 --output "${MUTANTS_OUT:-target/mutants}" \
+  --in-place --timeout 300 --build-timeout 1200 --output "$out" \
   "${args[@]}" ${MUTANTS_ARGS:-} "$@"
