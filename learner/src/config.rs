@@ -66,7 +66,7 @@ pub enum Sharing {
 pub enum Backbone {
     /// Stochastic tanh-Gaussian actors with entropy bonus; KD is the KL to the best actor.
     Sac,
-    /// Deterministic actors with target actors and target policy smoothing; KD is the squared
+    /// Deterministic actors with target actors and target policy smoothing; KD is the mean-squared
     /// action distance to the best actor; no temperature.
     Td3,
 }

@@ -212,6 +212,40 @@ mod tests {
         }
     }
 
+    /// ε matters where gradients are as small as ε itself: a first step is −lr·g/(|g| + ε), so
+    /// g = ε takes half a step and g = ε/10 a tenth of one, where without ε every coordinate would
+    /// take a full step of lr. Checked against the same scalar reference over a few steps.
+    #[test]
+    fn epsilon_damps_the_steps_of_tiny_gradients() {
+        let coef = [1e-9f64, 1e-8, 1e-2];
+        let p = Tensor::from_slice(&[0.0f32; 3]).set_requires_grad(true);
+        let c = Tensor::from_slice(&coef.map(|v| v as f32));
+        let mut opt = Adam::new(&[&p], 0.1);
+        let (mut x, mut m, mut v) = ([0.0f64; 3], [0.0f64; 3], [0.0f64; 3]);
+        for t in 1..=3 {
+            // loss = Σ c·x → constant gradient c
+            (&p * &c).sum(tch::Kind::Float).backward();
+            opt.step(&[&p]);
+            for k in 0..3 {
+                let g = coef[k] as f32 as f64;
+                m[k] = 0.9 * m[k] + 0.1 * g;
+                v[k] = 0.999 * v[k] + 0.001 * g * g;
+                let mh = m[k] / (1.0 - 0.9f64.powi(t));
+                let vh = v[k] / (1.0 - 0.999f64.powi(t));
+                x[k] -= 0.1 * mh / (vh.sqrt() + 1e-8);
+            }
+            if t == 1 {
+                let got = Vec::<f32>::try_from(&p.detach()).unwrap();
+                assert!((got[0] as f64 + 0.1 / 11.0).abs() < 1e-6, "{got:?}");
+                assert!((got[1] as f64 + 0.05).abs() < 1e-6, "{got:?}");
+            }
+        }
+        let got = Vec::<f32>::try_from(&p.detach()).unwrap();
+        for k in 0..3 {
+            assert!((got[k] as f64 - x[k]).abs() < 1e-6, "{got:?} vs {x:?}");
+        }
+    }
+
     /// Gradients so large that g² overflows f32 (the KD term toward a best actor whose σ sits
     /// at the clamp can give them) must not turn the weights into NaN: the second moment stays
     /// infinite and the step goes to zero, as in PyTorch.

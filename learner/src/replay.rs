@@ -31,6 +31,19 @@ pub struct Batch {
     pub terminated: Tensor,
 }
 
+impl Batch {
+    /// The same rows (tensors share storage; a batch is never written to).
+    pub fn shallow_clone(&self) -> Batch {
+        Batch {
+            obs: self.obs.shallow_clone(),
+            act: self.act.shallow_clone(),
+            reward: self.reward.shallow_clone(),
+            next_obs: self.next_obs.shallow_clone(),
+            terminated: self.terminated.shallow_clone(),
+        }
+    }
+}
+
 impl ReplayBuffer {
     pub fn new(capacity: usize, obs_dim: usize, act_dim: usize, device: Device) -> Self {
         let width = Self::width_for(obs_dim, act_dim);

@@ -51,6 +51,21 @@ pub struct Selkd {
     pub rng: Pcg64,
     pub critic_updates: u64,
     pub actor_updates: u64,
+    /// Off (`None`) in training. When `Some`, every random draw is appended to it, so that a test
+    /// can replay the same rounds in an independent implementation (`learner/tests/crosscheck.rs`).
+    pub draws: Option<Vec<Draw>>,
+}
+
+/// One random draw of the learner, in the order it was drawn.
+pub enum Draw {
+    /// A critic update's mini-batch (`groups` × B rows) and subsets (`groups` × M indices).
+    CriticBatch(Batch, Vec<i64>),
+    /// The actor update's mini-batch, K × B rows (row block i for actor i).
+    ActorBatch(Batch),
+    /// Standard normal noise, in the shape it was used.
+    Normal(Tensor),
+    /// REM's mixture draws `[G, M]`, before normalisation.
+    Uniform(Tensor),
 }
 
 /// What one round measured, for metrics.
@@ -100,6 +115,7 @@ impl Selkd {
             rng,
             critic_updates: 0,
             actor_updates: 0,
+            draws: None,
         }
     }
 
@@ -133,6 +149,7 @@ impl Selkd {
                     .collect::<Vec<_>>()
             })
             .collect();
+        self.record(|| Draw::CriticBatch(batch.shallow_clone(), subsets.clone()));
         self.update_critics_on(&batch, &subsets)
     }
 
@@ -271,6 +288,7 @@ impl Selkd {
                 .map(|_| self.rng.gen_range(0.0f32..1.0))
                 .collect();
             let w = Tensor::from_slice(&w).view([g, m]).to_device(self.device);
+            self.record(|| Draw::Uniform(w.shallow_clone()));
             &w / w.sum_dim_intlist(1, true, Kind::Float)
         });
         let opts = InnerOptions {
@@ -290,13 +308,19 @@ impl Selkd {
     }
 
     /// Lines 16–20, all K actors at once, each on its own mini-batch.
-    fn update_actors(&mut self, replay: &mut ReplayBuffer, best: usize, stats: &mut RoundStats) {
+    pub fn update_actors(
+        &mut self,
+        replay: &mut ReplayBuffer,
+        best: usize,
+        stats: &mut RoundStats,
+    ) {
         let (k, n, b) = (
             self.cfg.actors as i64,
             self.cfg.critics as i64,
             self.cfg.batch_size as i64,
         );
         let batch = replay.sample(self.cfg.actors, self.cfg.batch_size, &mut self.rng); // line 17
+        self.record(|| Draw::ActorBatch(batch.shallow_clone()));
         let s = &batch.obs;
         let (mu, log_std) = split_head(&self.actors.forward(s));
         let td3 = self.cfg.backbone == Backbone::Td3;
@@ -345,11 +369,12 @@ impl Selkd {
             .select(&Tensor::from_slice(&reference).to_device(self.device))
             .forward(s);
         let (mu_best, log_std_best) = split_head(&best_head);
-        // SAC: KL of the two policies; TD3: squared distance of the two deterministic actions.
+        // SAC: KL of the two policies; TD3: mean-squared distance of the two deterministic
+        // actions (SPEC, TD3 backbone: the mean over action dimensions).
         let kl = if td3 {
             (&a - mu_best.tanh())
                 .square()
-                .sum_dim_intlist(-1, false, Kind::Float)
+                .mean_dim(-1, false, Kind::Float)
         } else {
             gaussian_kl(&mu, &log_std, &mu_best, &log_std_best)
         };
@@ -415,7 +440,16 @@ impl Selkd {
         let v: Vec<f32> = (0..count)
             .map(|_| StandardNormal.sample(&mut self.rng))
             .collect();
-        Tensor::from_slice(&v).view(shape).to_device(self.device)
+        let eps = Tensor::from_slice(&v).view(shape).to_device(self.device);
+        self.record(|| Draw::Normal(eps.shallow_clone()));
+        eps
+    }
+
+    /// Appends a draw when recording is on (see [`Selkd::draws`]).
+    fn record(&mut self, draw: impl FnOnce() -> Draw) {
+        if let Some(draws) = &mut self.draws {
+            draws.push(draw());
+        }
     }
 
     /// Actor `i`'s weights in the flat layout workers use.
@@ -639,6 +673,376 @@ mod tests {
                 assert!((t_after[q] - (0.995 * t_before[q] + 0.005 * after[q])).abs() < 1e-6);
             }
         }
+        // The update's direction: critic j's gradient is that of its own hand-computed loss
+        // mean_B ½(Q_j(s, a) − y)² (central differences in f64, y held fixed), and Adam's first
+        // step moves each weight by −lr·g/(|g| + ε) against it.
+        let c_dims = [vec![obs + act], cfg.hidden.clone(), vec![1]].concat();
+        for j in 0..n {
+            let g = if groups == 1 { 0 } else { j };
+            let xs: Vec<Vec<f64>> = (0..b_size)
+                .map(|b| {
+                    let x = row(&batch.obs, g as i64, b).into_iter();
+                    f64s(x.chain(row(&batch.act, g as i64, b)).collect())
+                })
+                .collect();
+            let critic_loss = |theta: &[f64]| {
+                let sq = (0..xs.len())
+                    .map(|b| (flat_mlp(&c_dims, theta, &xs[b])[0] - y[g][b][j]).powi(2));
+                0.5 * sq.sum::<f64>() / xs.len() as f64
+            };
+            let theta = f64s(before[j].clone());
+            let learner = first_step_gradient(&s.critic_opt, j as i64);
+            let after = s.critics.member_flat(j as i64);
+            for p in 0..theta.len() {
+                let want = central_difference(&critic_loss, &theta, p);
+                assert!(
+                    (learner[p] - want).abs() <= 1e-3 * want.abs() + 1e-6,
+                    "critic {j} parameter {p}: gradient {} vs hand-computed {want}",
+                    learner[p]
+                );
+                let step = after[p] as f64 - theta[p];
+                let adam = -cfg.lr * want / (want.abs() + 1e-8);
+                if want.abs() > 1e-5 {
+                    assert!(
+                        (step - adam).abs() < 0.01 * cfg.lr,
+                        "critic {j} parameter {p}: moved {step} with gradient {want}"
+                    );
+                }
+            }
+        }
+    }
+
+    /// A parameter's gradient as the learner computed it, from Adam's first moment after its first
+    /// step (m₁ = (1 − β₁)·g), for member `i` in `member_flat`'s layout.
+    fn first_step_gradient(opt: &Adam, i: i64) -> Vec<f64> {
+        assert_eq!(opt.step, 1);
+        let parts: Vec<Tensor> = opt.exp_avg.iter().map(|m| m.get(i).reshape([-1])).collect();
+        let m = Vec::<f32>::try_from(Tensor::cat(&parts, 0)).unwrap();
+        m.iter().map(|&v| v as f64 / (1.0 - opt.beta1)).collect()
+    }
+
+    /// ∂f/∂θ_p by central differences (f64; h small against the weights, large against round-off).
+    fn central_difference(f: &impl Fn(&[f64]) -> f64, theta: &[f64], p: usize) -> f64 {
+        let h = 1e-6;
+        let mut t = theta.to_vec();
+        t[p] = theta[p] + h;
+        let up = f(&t);
+        t[p] = theta[p] - h;
+        (up - f(&t)) / (2.0 * h)
+    }
+
+    fn f64s(v: Vec<f32>) -> Vec<f64> {
+        v.into_iter().map(f64::from).collect()
+    }
+
+    /// A plain MLP forward (ReLU between layers, linear output) from one member's flat f64
+    /// parameters in `member_flat`'s layout: per layer the weight `[in][out]` row-major, then the bias.
+    fn flat_mlp(dims: &[usize], theta: &[f64], x: &[f64]) -> Vec<f64> {
+        let mut h = x.to_vec();
+        let mut at = 0;
+        for (l, w) in dims.windows(2).enumerate() {
+            let (n_in, n_out) = (w[0], w[1]);
+            let (weight, bias) = (&theta[at..at + n_in * n_out], &theta[at + n_in * n_out..]);
+            at += n_in * n_out + n_out;
+            h = (0..n_out)
+                .map(|o| {
+                    let acc =
+                        bias[o] + (0..n_in).map(|k| h[k] * weight[k * n_out + o]).sum::<f64>();
+                    if l + 2 < dims.len() {
+                        acc.max(0.0)
+                    } else {
+                        acc
+                    }
+                })
+                .collect();
+        }
+        assert_eq!(at, theta.len());
+        h
+    }
+
+    /// Rows of a `[G, B, D]` tensor, group `g`, as f64.
+    fn rows_of(t: &Tensor, g: i64) -> Vec<Vec<f64>> {
+        (0..t.size()[1]).map(|b| f64s(row(t, g, b))).collect()
+    }
+
+    /// The learner's draws of one `update_actors`: actor i's states `[K][B][obs]` and, for SAC, its
+    /// noise `[K][B][A]`.
+    #[allow(clippy::type_complexity)]
+    fn actor_draws(draws: Vec<Draw>, k: usize) -> (Vec<Vec<Vec<f64>>>, Option<Vec<Vec<Vec<f64>>>>) {
+        let mut it = draws.into_iter();
+        let Some(Draw::ActorBatch(batch)) = it.next() else {
+            panic!("the actor update draws its mini-batch first")
+        };
+        let states = (0..k as i64).map(|i| rows_of(&batch.obs, i)).collect();
+        let eps = it.next().map(|d| match d {
+            Draw::Normal(e) => (0..k as i64).map(|i| rows_of(&e, i)).collect(),
+            _ => panic!("then its noise"),
+        });
+        assert!(it.next().is_none());
+        (states, eps)
+    }
+
+    /// One actor's sampled action and log π by the textbook formulas (SPEC "Objects"):
+    /// u = μ + σε, a = tanh(u), log π = Σ_d [log N(u; μ, σ) − log(1 − tanh²u)], written with
+    /// log(1 − tanh²u) = −2 log cosh u (exact, no 1e-6).
+    fn hand_sample(head: &[f64], eps: &[f64]) -> (Vec<f64>, f64) {
+        let act = eps.len();
+        let mut logp = 0.0;
+        let a = (0..act)
+            .map(|d| {
+                let (mu, ls) = (head[d], head[act + d].clamp(-20.0, 2.0));
+                let u = mu + ls.exp() * eps[d];
+                let z = (u - mu) / ls.exp();
+                logp += -0.5 * z * z - ls - 0.5 * (2.0 * std::f64::consts::PI).ln()
+                    + 2.0 * u.cosh().ln();
+                u.tanh()
+            })
+            .collect();
+        (a, logp)
+    }
+
+    /// KL(N(μ, σ) ‖ N(μ_b, σ_b)) of two actor heads, summed over action dimensions (SPEC).
+    fn hand_kl(head: &[f64], best: &[f64]) -> f64 {
+        let act = head.len() / 2;
+        (0..act)
+            .map(|d| {
+                let (mu, ls) = (head[d], head[act + d].clamp(-20.0, 2.0));
+                let (mu_b, ls_b) = (best[d], best[act + d].clamp(-20.0, 2.0));
+                let (var, var_b) = ((2.0 * ls).exp(), (2.0 * ls_b).exp());
+                ls_b - ls + (var + (mu - mu_b).powi(2)) / (2.0 * var_b) - 0.5
+            })
+            .sum()
+    }
+
+    /// The actor objective (SPEC eq. 7–9) for one actor, by hand, value and gradient: actor i's
+    /// loss mean_s [α_i log π_i − (1/N) Σ_j Q_j(s, ã_i) + λ_KD KL(π_i ‖ π_best)] (TD3: no entropy,
+    /// a = tanh μ, KD the mean over dimensions of (a − a_best)²; w/o RL: actors ≠ 0 keep only the
+    /// KD term; w/o KD: only `kd_actors` have it; the best never does) is recomputed in f64 from
+    /// the drawn states and noise; the learner's reported loss must equal it and the learner's
+    /// gradient (Adam's first moment) must equal its central differences.
+    fn check_actor_update(backbone: Backbone, without_rl: bool, kd_actors: Option<Vec<usize>>) {
+        let (k, n, obs, act, best, lambda) = (3, 3, 3, 2, 1, 0.7);
+        let cfg = AlgoConfig {
+            backbone,
+            without_rl,
+            kd_actors: kd_actors.clone(),
+            kd_weight: lambda,
+            ..small(k, n, 2)
+        };
+        let td3 = backbone == Backbone::Td3;
+        let mut s = Selkd::new(&cfg, obs, act, Device::Cpu, 21);
+        let mut rb = filled_replay(obs, act, 100);
+        // Some temperatures away from 1, so that α_i visibly scales the entropy term.
+        tch::no_grad(|| {
+            let _ = s
+                .log_alpha
+                .shallow_clone()
+                .copy_(&Tensor::from_slice(&[-0.5f32, 0.3, 0.0]));
+        });
+        let alpha = f64s(Vec::<f32>::try_from(s.alpha()).unwrap());
+        let actors: Vec<Vec<f64>> = (0..k).map(|i| f64s(s.actor_weights(i))).collect();
+        let critics: Vec<Vec<f64>> = (0..n as i64)
+            .map(|j| f64s(s.critics.member_flat(j)))
+            .collect();
+        s.draws = Some(Vec::new());
+        let mut stats = RoundStats::default();
+        s.update_actors(&mut rb, best, &mut stats);
+        let (states, eps) = actor_draws(s.draws.take().unwrap(), k);
+        assert_eq!(eps.is_none(), td3, "TD3's actions are deterministic");
+        let a_dims = [vec![obs], cfg.hidden.clone(), vec![2 * act]].concat();
+        let c_dims = [vec![obs + act], cfg.hidden.clone(), vec![1]].concat();
+        for i in 0..k {
+            let rl = !without_rl || i == 0;
+            let distils = i != best && kd_actors.as_ref().is_none_or(|l| l.contains(&i));
+            let loss = |theta: &[f64]| {
+                let per_state = (0..cfg.batch_size).map(|b| {
+                    let st = &states[i][b];
+                    let head = flat_mlp(&a_dims, theta, st);
+                    let best_head = flat_mlp(&a_dims, &actors[best], st);
+                    let (a, logp, kd) = match &eps {
+                        None => {
+                            let a: Vec<f64> = head[..act].iter().map(|m| m.tanh()).collect();
+                            let d2: f64 =
+                                (0..act).map(|d| (a[d] - best_head[d].tanh()).powi(2)).sum();
+                            (a, 0.0, d2 / act as f64)
+                        }
+                        Some(eps) => {
+                            let (a, logp) = hand_sample(&head, &eps[i][b]);
+                            (a, logp, hand_kl(&head, &best_head))
+                        }
+                    };
+                    let x: Vec<f64> = st.iter().copied().chain(a).collect();
+                    let q = critics
+                        .iter()
+                        .map(|c| flat_mlp(&c_dims, c, &x)[0])
+                        .sum::<f64>();
+                    let mut l = 0.0;
+                    if rl {
+                        l += alpha[i] * logp - q / n as f64;
+                    }
+                    if distils {
+                        l += lambda * kd;
+                    }
+                    l
+                });
+                per_state.sum::<f64>() / cfg.batch_size as f64
+            };
+            let want = loss(&actors[i]);
+            assert!(
+                (stats.actor_loss[i] - want).abs() < 1e-5 * want.abs().max(1.0),
+                "{backbone:?} w/o RL {without_rl} actor {i}: loss {} vs hand-computed {want}",
+                stats.actor_loss[i]
+            );
+            let learner = first_step_gradient(&s.actor_opt, i as i64);
+            let mut largest = 0.0f64;
+            for p in 0..actors[i].len() {
+                let want = central_difference(&loss, &actors[i], p);
+                largest = largest.max(want.abs());
+                assert!(
+                    (learner[p] - want).abs() <= 1e-3 * want.abs() + 1e-6,
+                    "{backbone:?} w/o RL {without_rl} actor {i} parameter {p}: gradient {} vs hand-computed {want}",
+                    learner[p]
+                );
+            }
+            // An actor with a loss term has a gradient; one without has none (and stays put).
+            assert_eq!(
+                largest > 1e-3,
+                rl || distils,
+                "actor {i}: largest gradient {largest}"
+            );
+        }
+    }
+
+    #[test]
+    fn sac_actor_loss_and_gradient_match_a_hand_computation() {
+        check_actor_update(Backbone::Sac, false, None);
+    }
+
+    #[test]
+    fn td3_actor_loss_and_gradient_match_a_hand_computation() {
+        check_actor_update(Backbone::Td3, false, None);
+    }
+
+    /// w/o RL with λ_KD > 0: actors 1 and 2 learn only by distilling toward the best (actor 1 is
+    /// the best, so it has no loss at all); actor 0 keeps RL and KD.
+    #[test]
+    fn without_rl_the_other_actors_only_distil() {
+        check_actor_update(Backbone::Sac, true, None);
+        check_actor_update(Backbone::Td3, true, None);
+    }
+
+    #[test]
+    fn without_kd_only_the_listed_actors_have_the_kd_term_in_their_gradient() {
+        check_actor_update(Backbone::Sac, false, Some(vec![2]));
+    }
+
+    /// The temperature (SPEC: minimise −log α_i · (log π_i + target entropy), log π detached):
+    /// its gradient −mean_s(log π_i + H) by hand from the drawn noise, Adam's first step against
+    /// it, and what that means: α falls while the policy's entropy is above the target and rises
+    /// while it is below. H defaults to −|A|.
+    fn check_temperature(target_entropy: Option<f64>, alpha_rises: bool) {
+        let (k, obs, act) = (3, 3, 2);
+        let cfg = AlgoConfig {
+            target_entropy,
+            alpha_lr: 0.01,
+            ..small(k, 2, 2)
+        };
+        let mut s = Selkd::new(&cfg, obs, act, Device::Cpu, 23);
+        let mut rb = filled_replay(obs, act, 100);
+        let actors: Vec<Vec<f64>> = (0..k).map(|i| f64s(s.actor_weights(i))).collect();
+        s.draws = Some(Vec::new());
+        let mut stats = RoundStats::default();
+        s.update_actors(&mut rb, 0, &mut stats);
+        let (states, eps) = actor_draws(s.draws.take().unwrap(), k);
+        let eps = eps.unwrap();
+        let h = target_entropy.unwrap_or(-(act as f64));
+        let a_dims = [vec![obs], cfg.hidden.clone(), vec![2 * act]].concat();
+        let log_alpha = Vec::<f32>::try_from(&s.log_alpha.detach()).unwrap();
+        let moment = Vec::<f32>::try_from(&s.alpha_opt.exp_avg[0]).unwrap();
+        for i in 0..k {
+            let logp: Vec<f64> = (0..cfg.batch_size)
+                .map(|b| hand_sample(&flat_mlp(&a_dims, &actors[i], &states[i][b]), &eps[i][b]).1)
+                .collect();
+            let mean_logp = logp.iter().sum::<f64>() / logp.len() as f64;
+            assert!((stats.entropy[i] + mean_logp).abs() < 1e-4 * mean_logp.abs().max(1.0));
+            let grad = -(mean_logp + h);
+            assert!(
+                (moment[i] as f64 / 0.1 - grad).abs() < 1e-4 * grad.abs().max(1.0),
+                "actor {i}: α gradient {} vs hand-computed {grad}",
+                moment[i] as f64 / 0.1
+            );
+            let want = -0.01 * grad / (grad.abs() + 1e-8);
+            assert!(
+                (log_alpha[i] as f64 - want).abs() < 1e-6,
+                "actor {i}: log α {} vs {want}",
+                log_alpha[i]
+            );
+            assert_eq!(
+                log_alpha[i] > 0.0,
+                alpha_rises,
+                "entropy {} vs target {h}",
+                -mean_logp
+            );
+            assert!((stats.alpha[i] - want.exp()).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn temperature_falls_while_entropy_is_above_the_default_target() {
+        // Untrained actors (σ ≈ 1) have entropy far above −|A| = −2.
+        check_temperature(None, false);
+    }
+
+    #[test]
+    fn temperature_rises_while_entropy_is_below_the_target() {
+        check_temperature(Some(10.0), true);
+    }
+
+    /// Lines 9–10: each subset is M distinct critics drawn uniformly, so over many updates every
+    /// critic serves equally often, and (per-critic) each critic's group gets its own subset.
+    #[test]
+    fn critic_subsets_are_uniform_draws_without_replacement() {
+        for sharing in [Sharing::PerUpdate, Sharing::PerCritic] {
+            let (n, m, updates) = (5, 2, 300);
+            let cfg = AlgoConfig {
+                sharing,
+                hidden: vec![4],
+                ..small(1, n, m)
+            };
+            let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 24);
+            let mut rb = filled_replay(3, 2, 100);
+            s.draws = Some(Vec::new());
+            for _ in 0..updates {
+                s.update_critics(&mut rb);
+            }
+            let mut count = vec![0usize; n];
+            let mut pairs = std::collections::BTreeSet::new();
+            let mut subsets = 0;
+            for d in s.draws.take().unwrap() {
+                if let Draw::CriticBatch(_, flat) = d {
+                    for sub in flat.chunks(m) {
+                        assert_ne!(sub[0], sub[1], "{sharing:?}: drawn without replacement");
+                        pairs.insert((sub[0].min(sub[1]), sub[0].max(sub[1])));
+                        sub.iter().for_each(|&j| count[j as usize] += 1);
+                        subsets += 1;
+                    }
+                }
+            }
+            let groups = if sharing == Sharing::PerCritic { n } else { 1 };
+            assert_eq!(subsets, updates * groups);
+            let expected = (subsets * m) as f64 / n as f64;
+            for (j, &c) in count.iter().enumerate() {
+                assert!(
+                    (c as f64 - expected).abs() < 0.25 * expected,
+                    "{sharing:?}: critic {j} in {c} subsets, expected about {expected}"
+                );
+            }
+            assert_eq!(
+                pairs.len(),
+                n * (n - 1) / 2,
+                "{sharing:?}: every pair occurs"
+            );
+        }
     }
 
     #[test]
@@ -709,7 +1113,7 @@ mod tests {
         check_distillation(Backbone::Sac);
     }
 
-    /// TD3 backbone: KD is the squared distance to the best actor's deterministic action.
+    /// TD3 backbone: KD is the mean-squared distance to the best actor's deterministic action.
     #[test]
     fn td3_distillation_pulls_actions_toward_the_best() {
         check_distillation(Backbone::Td3);
