@@ -837,6 +837,12 @@ impl Learner {
             "dropped_nonfinite": self.dropped_nonfinite,
             "dropped_malformed": self.dropped_malformed,
             "dropped_stale": self.dropped_stale,
+            // Each actor's latest evaluation success rate (null for tasks without one).
+            "success": self
+                .eval_success
+                .iter()
+                .map(|&(_, rate)| rate.is_finite().then_some(rate))
+                .collect::<Vec<_>>(),
             "wall_s": self.wall(),
         });
         // The launcher may be gone (its stdout closed): progress is best effort, never a panic.
