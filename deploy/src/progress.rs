@@ -67,6 +67,9 @@ impl ProgressMeter {
         let left = (total - sample.env_steps).max(0.0);
         let eta = if left == 0.0 {
             "ETA 0s".to_string()
+        } else if sample.critic_updates == 0.0 {
+            // Warm-up steps need no updates and fly by; the rate after them is the learner's.
+            "warm-up, ETA after it".to_string()
         } else if steps_per_s > 0.0 {
             format!("ETA {}", duration(left / steps_per_s))
         } else {
@@ -185,12 +188,14 @@ mod tests {
         let line = m.line(&progress(1.0, 600, 0), Duration::from_secs(1));
         assert!(line.contains("| 9999 env steps/s"), "{line}");
         assert!(line.contains("| 9999 updates/s"), "{line}");
+        // No update yet: still in the warm-up, whose pace says nothing about the rest.
+        assert!(line.contains("(5%, warm-up, ETA after it)"), "{line}");
         let line = m.line(&progress(2.0, 12000, 10), Duration::from_secs(2));
         assert!(line.contains("(100%, ETA 0s)"), "{line}");
         // No progress over the window: no ETA rather than an infinite one.
         let mut m = ProgressMeter::new(10.0);
-        m.line(&progress(1.0, 600, 0), Duration::from_secs(1));
-        let line = m.line(&progress(2.0, 600, 0), Duration::from_secs(2));
+        m.line(&progress(1.0, 600, 10), Duration::from_secs(1));
+        let line = m.line(&progress(2.0, 600, 10), Duration::from_secs(2));
         assert!(line.contains("ETA –"), "{line}");
     }
 
