@@ -275,6 +275,50 @@ mod tests {
         assert!(e.contains("best, all or an actor index"), "{e}");
     }
 
+    /// A task with success (the assembly task) gets a success column in the table and rates in
+    /// the JSON; one episode has no std (n/a in the table, null in JSON).
+    #[test]
+    fn success_rates_appear_for_tasks_that_have_them() {
+        let cfg = Config::default();
+        let results = vec![
+            ActorResult {
+                actor: 0,
+                evaluation: Evaluation {
+                    returns: vec![1.0, 3.0, 2.0, 6.0],
+                    successes: vec![Some(true), Some(false), Some(true), Some(true)],
+                },
+            },
+            ActorResult {
+                actor: 1,
+                evaluation: Evaluation {
+                    returns: vec![-2.0],
+                    successes: vec![Some(false)],
+                },
+            },
+        ];
+        let t = table(Path::new("ck"), &cfg, 1, &[5, 6, 7, 8], true, &results);
+        let rows: Vec<&str> = t.lines().collect();
+        assert!(rows[1].contains("success"), "{t}");
+        // Actor 0: mean 3, sample std sqrt(14/3) = 2.16, 3 of 4 succeeded.
+        assert!(
+            rows[2].starts_with("0 ") && rows[2].contains("3.0 ± 2.2") && rows[2].ends_with("75%"),
+            "{t}"
+        );
+        assert!(
+            rows[3].starts_with("1 (best)")
+                && rows[3].contains("-2.0")
+                && !rows[3].contains('±')
+                && rows[3].ends_with("0%"),
+            "{t}"
+        );
+        let j: serde_json::Value =
+            serde_json::from_str(&json(Path::new("ck"), &cfg, 1, &[5, 6, 7, 8], &results)).unwrap();
+        assert_eq!(j["actors"][0]["success_rate"], 0.75);
+        assert!(j["actors"][1]["std_return"].is_null());
+        assert_eq!(j["actors"][1]["best"], true);
+        assert_eq!(j["actors"][0]["successes"][1], false);
+    }
+
     #[test]
     fn std_is_the_sample_one() {
         // Values 1, 2, 3, 4: mean 2.5, squared deviations 5, divisor 3.

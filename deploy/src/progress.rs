@@ -2,12 +2,81 @@
 //!
 //! Rates are averaged over the last [`WINDOW_S`] seconds of that history (the learner's own
 //! per-second rates jump with every evaluation and checkpoint), and the ETA divides the env steps
-//! left by that rate. Tasks with a success criterion show each actor's success rate when the
-//! learner reports one (`success`), since their returns are small and say little.
+//! left by that rate. Tasks with a success criterion show each actor's success rate instead of
+//! its score (their returns are small and say little): PROGRESS's `success` when the learner
+//! sends one, else the latest `eval_success_i` of the run's `metrics.csv`.
 
 use serde_json::Value;
+use std::cell::RefCell;
 use std::collections::VecDeque;
-use std::time::Duration;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, SystemTime};
+
+thread_local! {
+    /// `selkd train`'s meter. Its supervision runs on one thread (a current-thread runtime), so a
+    /// thread-local holds the history without threading it through the supervision loop.
+    static METER: RefCell<ProgressMeter> = RefCell::new(ProgressMeter::new(WINDOW_S));
+}
+
+/// The progress line for one PROGRESS value, from this thread's meter.
+pub fn line(p: &Value, elapsed: Duration) -> String {
+    METER.with(|m| m.borrow_mut().line(p, elapsed))
+}
+
+/// Tells this thread's meter where the run's `metrics.csv` is (for success rates).
+pub fn watch_metrics(path: PathBuf) {
+    METER.with(|m| m.borrow_mut().metrics = Some(MetricsFile::new(path)));
+}
+
+/// The run's metrics.csv, re-read only when it changes.
+struct MetricsFile {
+    path: PathBuf,
+    seen: Option<SystemTime>,
+    success: Option<Vec<Option<f64>>>,
+}
+
+impl MetricsFile {
+    fn new(path: PathBuf) -> Self {
+        Self {
+            path,
+            seen: None,
+            success: None,
+        }
+    }
+
+    fn success(&mut self) -> Option<Vec<Option<f64>>> {
+        let modified = std::fs::metadata(&self.path)
+            .and_then(|m| m.modified())
+            .ok();
+        if modified.is_some() && modified != self.seen {
+            self.seen = modified;
+            self.success = latest_success(&self.path);
+        }
+        self.success.clone()
+    }
+}
+
+/// Each actor's success rate in the last row of `metrics.csv` (`eval_success_i`; NaN for tasks
+/// without success); `None` when there is no row or no actor has a rate.
+fn latest_success(path: &Path) -> Option<Vec<Option<f64>>> {
+    let text = std::fs::read_to_string(path).ok()?;
+    let mut lines = text.lines().filter(|l| !l.trim().is_empty());
+    let header: Vec<&str> = lines.next()?.split(',').collect();
+    let last: Vec<&str> = lines.last()?.split(',').collect();
+    let rates: Vec<Option<f64>> = (0..)
+        .map_while(|i| {
+            header
+                .iter()
+                .position(|h| *h == format!("eval_success_{i}"))
+        })
+        .map(|col| {
+            last.get(col)
+                .and_then(|v| v.trim().parse::<f64>().ok())
+                .filter(|v| v.is_finite())
+        })
+        .collect();
+    rates.iter().any(Option::is_some).then_some(rates)
+}
 
 /// Seconds of PROGRESS history the rates are averaged over.
 pub const WINDOW_S: f64 = 10.0;
@@ -24,6 +93,7 @@ struct Sample {
 pub struct ProgressMeter {
     history: VecDeque<Sample>,
     window_s: f64,
+    metrics: Option<MetricsFile>,
 }
 
 impl ProgressMeter {
@@ -31,6 +101,7 @@ impl ProgressMeter {
         Self {
             history: VecDeque::new(),
             window_s,
+            metrics: None,
         }
     }
 
@@ -67,12 +138,18 @@ impl ProgressMeter {
         let left = (total - sample.env_steps).max(0.0);
         let eta = if left == 0.0 {
             "ETA 0s".to_string()
+        } else if sample.critic_updates == 0.0 {
+            // Warm-up steps need no updates and fly by; the rate after them is the learner's.
+            "warm-up, ETA after it".to_string()
         } else if steps_per_s > 0.0 {
             format!("ETA {}", duration(left / steps_per_s))
         } else {
             "ETA –".to_string()
         };
-        let scores = match per_actor(&p["success"]) {
+        let success = per_actor(&p["success"])
+            .filter(|r| r.iter().any(Option::is_some))
+            .or_else(|| self.metrics.as_mut().and_then(MetricsFile::success));
+        let scores = match success {
             Some(rates) if rates.iter().any(Option::is_some) => format!(
                 "success [{}]",
                 rates
@@ -185,12 +262,14 @@ mod tests {
         let line = m.line(&progress(1.0, 600, 0), Duration::from_secs(1));
         assert!(line.contains("| 9999 env steps/s"), "{line}");
         assert!(line.contains("| 9999 updates/s"), "{line}");
+        // No update yet: still in the warm-up, whose pace says nothing about the rest.
+        assert!(line.contains("(5%, warm-up, ETA after it)"), "{line}");
         let line = m.line(&progress(2.0, 12000, 10), Duration::from_secs(2));
         assert!(line.contains("(100%, ETA 0s)"), "{line}");
         // No progress over the window: no ETA rather than an infinite one.
         let mut m = ProgressMeter::new(10.0);
-        m.line(&progress(1.0, 600, 0), Duration::from_secs(1));
-        let line = m.line(&progress(2.0, 600, 0), Duration::from_secs(2));
+        m.line(&progress(1.0, 600, 10), Duration::from_secs(1));
+        let line = m.line(&progress(2.0, 600, 10), Duration::from_secs(2));
         assert!(line.contains("ETA –"), "{line}");
     }
 
@@ -216,6 +295,40 @@ mod tests {
         p["success"] = json!([null, null, null]);
         let line = m.line(&p, Duration::from_secs(2));
         assert!(line.contains("scores ["), "{line}");
+    }
+
+    #[test]
+    fn success_rates_come_from_metrics_csv_when_progress_has_none() {
+        let dir = std::env::temp_dir().join(format!("selkd-progress-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("metrics.csv");
+        let mut m = ProgressMeter::new(10.0);
+        m.metrics = Some(MetricsFile::new(path.clone()));
+        // No metrics.csv yet: the scores.
+        let line = m.line(&progress(1.0, 0, 0), Duration::from_secs(1));
+        assert!(line.contains("scores [-1234 – 0.00]"), "{line}");
+        // The assembly task's rows: the last row's rates (NaN: that actor has none).
+        std::fs::write(
+            &path,
+            "epoch,env_steps,eval_return_0,eval_return_1,eval_return_2,eval_success_0,eval_success_1,eval_success_2\n\
+             1,2000,-0.3,-0.2,-0.1,0.000,0.100,NaN\n\
+             2,4000,1.3,-0.2,2.1,0.300,NaN,0.600\n",
+        )
+        .unwrap();
+        let line = m.line(&progress(2.0, 10, 1), Duration::from_secs(2));
+        assert!(line.contains("success [30% – 60%]"), "{line}");
+        // A task without success: its NaN columns leave the scores.
+        let other = dir.join("pendulum.csv");
+        std::fs::write(
+            &other,
+            "epoch,env_steps,eval_return_0,eval_success_0\n1,1000,-150.0,NaN\n",
+        )
+        .unwrap();
+        let mut m = ProgressMeter::new(10.0);
+        m.metrics = Some(MetricsFile::new(other));
+        let line = m.line(&progress(1.0, 0, 0), Duration::from_secs(1));
+        assert!(line.contains("scores ["), "{line}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

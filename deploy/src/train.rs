@@ -198,6 +198,8 @@ pub fn run(mut args: TrainArgs) -> Result<i32> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
+    // The progress line reads the success rates of tasks that have them from metrics.csv.
+    crate::progress::watch_metrics(run_dir.join("metrics.csv"));
     let result = rt.block_on(supervise(
         &args,
         &cfg,
@@ -618,13 +620,8 @@ fn is_zombie(pid: u32) -> bool {
 }
 
 fn progress_line(p: &serde_json::Value, elapsed: Duration) -> String {
-    // The meter keeps the PROGRESS history its windowed rates and ETA need; supervise runs on
-    // one thread (a current-thread runtime), so a thread-local holds it without a new argument.
-    thread_local! {
-        static METER: std::cell::RefCell<crate::progress::ProgressMeter> =
-            std::cell::RefCell::new(crate::progress::ProgressMeter::new(crate::progress::WINDOW_S));
-    }
-    METER.with(|m| m.borrow_mut().line(p, elapsed))
+    // Windowed rates, the ETA and success rates need history: `crate::progress` keeps it.
+    crate::progress::line(p, elapsed)
 }
 
 #[cfg(test)]
