@@ -10,8 +10,8 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use selkd_policy::{evaluation, Actor, ActorLayout};
 use selkd_protocol::{
-    services, Control, CursorHeader, Name, Report, ReportKind, Services, TransitionHeader, TransitionRow,
-    PROTOCOL_VERSION,
+    services, Control, CursorHeader, Name, Report, ReportKind, Services, TransitionHeader,
+    TransitionRow, PROTOCOL_VERSION,
 };
 use std::time::{Duration, Instant};
 
@@ -237,7 +237,14 @@ fn run(args: &Args) -> Result<()> {
     let (cursor, recorded_actions) = loop {
         // Hello again now and then: a learner that was busy (or just started) may have missed it.
         if last_hello.is_none_or(|t| t.elapsed() > Duration::from_secs(1)) {
-            reports.send_copy(hello(ReportKind::Hello, weights_version, 0, 0, f64::NAN, f64::NAN))?;
+            reports.send_copy(hello(
+                ReportKind::Hello,
+                weights_version,
+                0,
+                0,
+                f64::NAN,
+                f64::NAN,
+            ))?;
             to_learner.notify()?;
             last_hello = Some(Instant::now());
         }

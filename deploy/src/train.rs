@@ -114,9 +114,15 @@ enum Event {
     },
     LearnerExited(std::process::ExitStatus),
     /// The learner reports a worker it waits on as silent for `run.worker_timeout`.
-    Stalled { worker: usize, silent_s: f64 },
+    Stalled {
+        worker: usize,
+        silent_s: f64,
+    },
     /// A restart's back-off is over.
-    Restart { worker: usize, generation: u32 },
+    Restart {
+        worker: usize,
+        generation: u32,
+    },
 }
 
 pub fn run(mut args: TrainArgs) -> Result<i32> {
@@ -411,7 +417,10 @@ async fn supervise(
                     if let Ok(v) = serde_json::from_str::<serde_json::Value>(json) {
                         if let Some(worker) = v["worker"].as_u64() {
                             let silent_s = v["silent_s"].as_f64().unwrap_or(0.0);
-                            let _ = tx.send(Event::Stalled { worker: worker as usize, silent_s });
+                            let _ = tx.send(Event::Stalled {
+                                worker: worker as usize,
+                                silent_s,
+                            });
                         }
                     }
                 }
@@ -694,6 +703,9 @@ mod tests {
         assert!(slot.died(1, short).is_some());
         assert!(slot.died(1, short).is_none(), "two deaths within 50 ms");
         std::thread::sleep(ms(60));
-        assert!(slot.died(1, short).is_some(), "the earlier ones left the window");
+        assert!(
+            slot.died(1, short).is_some(),
+            "the earlier ones left the window"
+        );
     }
 }

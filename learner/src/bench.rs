@@ -114,8 +114,9 @@ mod tests {
         // The N critics' forward and backward dominate: by hand, 10·256·(35·256 + 256² + 256)
         // multiply-adds forward is 191 M, so forward + weight gradients + input gradients is
         // 2·(2·191 M + 10·256·(256² + 256)) = 1.10 GFLOP.
-        let critics_only = 2.0 * (2.0 * 10.0 * 256.0 * (35.0 * 256.0 + 65536.0 + 256.0)
-            + 10.0 * 256.0 * (65536.0 + 256.0));
+        let critics_only = 2.0
+            * (2.0 * 10.0 * 256.0 * (35.0 * 256.0 + 65536.0 + 256.0)
+                + 10.0 * 256.0 * (65536.0 + 256.0));
         assert!(per_update > critics_only && per_update < 1.15 * critics_only);
     }
 }

@@ -124,7 +124,12 @@ unsafe fn adam_avx2(p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32], 
 /// rounds alike).
 #[inline(always)]
 fn adam_loop(p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32], c: &Constants) {
-    for (((p, g), m), v) in p.iter_mut().zip(g.iter_mut()).zip(m.iter_mut()).zip(v.iter_mut()) {
+    for (((p, g), m), v) in p
+        .iter_mut()
+        .zip(g.iter_mut())
+        .zip(m.iter_mut())
+        .zip(v.iter_mut())
+    {
         let grad = *g;
         *m += c.one_minus_beta1 * (grad - *m);
         *v = *v * c.beta2 + grad * (grad * c.one_minus_beta2);
@@ -178,7 +183,9 @@ mod tests {
         let mut plain = Adam::new(&[&b], 1e-2);
         for t in 0..50 {
             // Gradients spanning 1e-12 to 1e3: the smallest sit below ε.
-            let scale = (Tensor::rand([4, 33, 17], (tch::Kind::Float, tch::Device::Cpu)) * 15.0 - 12.0) * std::f64::consts::LN_10;
+            let scale = (Tensor::rand([4, 33, 17], (tch::Kind::Float, tch::Device::Cpu)) * 15.0
+                - 12.0)
+                * std::f64::consts::LN_10;
             let scale = scale.exp();
             let grad = Tensor::randn([4, 33, 17], (tch::Kind::Float, tch::Device::Cpu)) * scale;
             for p in [&a, &b] {
@@ -188,7 +195,10 @@ mod tests {
             fused.step(&[&a]);
             // The same step through the tensor path.
             plain.step += 1;
-            let (b1, b2) = (1.0 - 0.9f64.powi(plain.step as i32), 1.0 - 0.999f64.powi(plain.step as i32));
+            let (b1, b2) = (
+                1.0 - 0.9f64.powi(plain.step as i32),
+                1.0 - 0.999f64.powi(plain.step as i32),
+            );
             let c = Constants {
                 one_minus_beta1: 0.1f64 as f32,
                 beta2: 0.999,
@@ -198,17 +208,30 @@ mod tests {
             };
             tch::no_grad(|| {
                 let mut p = b.shallow_clone();
-                tensor_step(&mut p, &b.grad(), &mut plain.exp_avg[0], &mut plain.exp_avg_sq[0], &c);
+                tensor_step(
+                    &mut p,
+                    &b.grad(),
+                    &mut plain.exp_avg[0],
+                    &mut plain.exp_avg_sq[0],
+                    &c,
+                );
                 p.zero_grad();
             });
             assert_eq!(a.grad().abs().sum(tch::Kind::Float).double_value(&[]), 0.0);
         }
         let moved = (&a - &start).abs().max().double_value(&[]);
         assert!(moved > 0.1, "the parameters moved ({moved})");
-        for (x, y) in [(&a, &b), (&fused.exp_avg[0], &plain.exp_avg[0]), (&fused.exp_avg_sq[0], &plain.exp_avg_sq[0])] {
+        for (x, y) in [
+            (&a, &b),
+            (&fused.exp_avg[0], &plain.exp_avg[0]),
+            (&fused.exp_avg_sq[0], &plain.exp_avg_sq[0]),
+        ] {
             // Relative to the tensor's scale: 50 steps of rounding, each at most an ulp or two.
             let rel = (x - y).abs().max().double_value(&[]) / y.abs().max().double_value(&[]);
-            assert!(rel < 1e-6, "fused and tensor steps differ by {rel:e} (relative)");
+            assert!(
+                rel < 1e-6,
+                "fused and tensor steps differ by {rel:e} (relative)"
+            );
         }
     }
 

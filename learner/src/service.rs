@@ -176,10 +176,9 @@ impl Learner {
                 act_dim: spec.act_dim,
             },
             k,
-            rollouts: resumed.as_ref().map_or_else(
-                || vec![Rollout::default(); k],
-                |s| s.rollouts(),
-            ),
+            rollouts: resumed
+                .as_ref()
+                .map_or_else(|| vec![Rollout::default(); k], |s| s.rollouts()),
             accepting: vec![None; k],
             cursor_due: vec![None; k],
             watchdog: Watchdog::new(
@@ -197,7 +196,11 @@ impl Learner {
             eval_reported: vec![epochs_logged; k],
             eval_success: vec![(0, f64::NAN); k],
             pending: match resumed.as_ref().filter(|s| s.pending.len() == k) {
-                Some(s) => s.pending.iter().map(|q| q.iter().cloned().collect()).collect(),
+                Some(s) => s
+                    .pending
+                    .iter()
+                    .map(|q| q.iter().cloned().collect())
+                    .collect(),
                 None => (0..k).map(|_| VecDeque::new()).collect(),
             },
             dropped_nonfinite: resumed.as_ref().map_or(0, |s| s.dropped[0]),
@@ -748,7 +751,10 @@ impl Learner {
         let mut values: Vec<(String, f64)> = vec![
             ("eval/best".into(), self.ranking.best() as f64),
             ("train/epoch".into(), epoch as f64),
-            ("train/critic_updates".into(), self.selkd.critic_updates as f64),
+            (
+                "train/critic_updates".into(),
+                self.selkd.critic_updates as f64,
+            ),
             ("train/critic_loss".into(), st.critic_loss),
             ("train/q_mean".into(), st.q_mean),
             ("train/policy_lag_mean".into(), lag),
@@ -756,8 +762,14 @@ impl Learner {
                 "train/dropped".into(),
                 (self.dropped_nonfinite + self.dropped_malformed + self.dropped_stale) as f64,
             ),
-            ("rates/updates_per_s".into(), self.selkd.critic_updates as f64 / wall.max(1e-9)),
-            ("rates/env_steps_per_s".into(), self.inserted as f64 / wall.max(1e-9)),
+            (
+                "rates/updates_per_s".into(),
+                self.selkd.critic_updates as f64 / wall.max(1e-9),
+            ),
+            (
+                "rates/env_steps_per_s".into(),
+                self.inserted as f64 / wall.max(1e-9),
+            ),
         ];
         for i in 0..self.k {
             let at = |v: &[f64]| v.get(i).copied().unwrap_or(f64::NAN);
@@ -975,7 +987,10 @@ impl Learner {
             "checkpoint written to {}",
             dir.display()
         );
-        prune_checkpoints(&self.run_dir.join("checkpoints"), self.cfg.run.keep_checkpoints);
+        prune_checkpoints(
+            &self.run_dir.join("checkpoints"),
+            self.cfg.run.keep_checkpoints,
+        );
         Ok(())
     }
 }
@@ -1134,7 +1149,14 @@ mod tests {
     #[test]
     fn only_the_newest_periodic_checkpoints_are_kept() {
         let dir = std::env::temp_dir().join(format!("selkd-prune-{}", std::process::id()));
-        for name in ["step-900", "step-10000", "step-2000", "step-3000", "final", "step-x"] {
+        for name in [
+            "step-900",
+            "step-10000",
+            "step-2000",
+            "step-3000",
+            "final",
+            "step-x",
+        ] {
             std::fs::create_dir_all(dir.join(name)).unwrap();
         }
         std::fs::write(dir.join("latest"), "step-10000\n").unwrap();
@@ -1145,7 +1167,10 @@ mod tests {
             .collect();
         left.sort();
         // Numeric order, not text order: step-10000 is the newest.
-        assert_eq!(left, ["final", "latest", "step-10000", "step-3000", "step-x"]);
+        assert_eq!(
+            left,
+            ["final", "latest", "step-10000", "step-3000", "step-x"]
+        );
         let _ = std::fs::remove_dir_all(dir);
     }
 

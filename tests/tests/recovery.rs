@@ -46,7 +46,10 @@ fn assert_same_run(a: &Path, b: &Path, what: &str) {
     let (wa, ra, sa) = final_checkpoint(a);
     let (wb, rb, sb) = final_checkpoint(b);
     assert_eq!(sa, sb, "{what}: final state.json differs from the twin's");
-    assert!(ra == rb, "{what}: final replay buffer differs from the twin's");
+    assert!(
+        ra == rb,
+        "{what}: final replay buffer differs from the twin's"
+    );
     assert!(wa == wb, "{what}: final weights differ from the twin's");
 }
 
@@ -55,7 +58,11 @@ fn run_id(child: &mut Child) -> (String, BufReader<std::process::ChildStderr>) {
     let mut stderr = BufReader::new(child.stderr.take().unwrap());
     let mut first = String::new();
     stderr.read_line(&mut first).unwrap();
-    let id = first.split_whitespace().nth(2).unwrap().trim_end_matches(':');
+    let id = first
+        .split_whitespace()
+        .nth(2)
+        .unwrap()
+        .trim_end_matches(':');
     (id.to_string(), stderr)
 }
 
@@ -68,7 +75,9 @@ fn learner_pid(run_id: &str) -> Option<i32> {
         .find(|pid| {
             std::fs::read(format!("/proc/{pid}/cmdline")).is_ok_and(|c| {
                 let c = String::from_utf8_lossy(&c);
-                c.split('\0').next().is_some_and(|exe| exe.ends_with("/learner"))
+                c.split('\0')
+                    .next()
+                    .is_some_and(|exe| exe.ends_with("/learner"))
                     && c.contains(&want)
             })
         })
@@ -113,9 +122,12 @@ fn a_sync_run_killed_and_resumed_ends_bit_identical_to_its_uninterrupted_twin() 
         let mut child = spawn(c);
         let (id, stderr) = run_id(&mut child);
         let latest = dir.join("checkpoints/latest");
-        wait_until("a periodic checkpoint", &dir, Duration::from_secs(120), || {
-            std::fs::read_to_string(&latest).is_ok_and(|n| n.starts_with("step-"))
-        });
+        wait_until(
+            "a periodic checkpoint",
+            &dir,
+            Duration::from_secs(120),
+            || std::fs::read_to_string(&latest).is_ok_and(|n| n.starts_with("step-")),
+        );
         if how == "learner" {
             let pid = learner_pid(&id).expect("the learner is running");
             unsafe { libc::kill(pid, libc::SIGKILL) };
@@ -123,7 +135,10 @@ fn a_sync_run_killed_and_resumed_ends_bit_identical_to_its_uninterrupted_twin() 
             unsafe { libc::killpg(child.id() as i32, libc::SIGKILL) };
         }
         let (code, rest) = finish(child, stderr);
-        assert_ne!(code, 0, "{how}: the killed run must not report success: {rest}");
+        assert_ne!(
+            code, 0,
+            "{how}: the killed run must not report success: {rest}"
+        );
         assert!(
             !dir.join("checkpoints/final").exists(),
             "{how}: killed before its end"
@@ -156,7 +171,9 @@ fn kill_storm(dir: &Path, id: &str, k: usize, kills: usize, every: Duration) -> 
         let w = (state % k as u64) as usize;
         let pids = worker_pids(id, w);
         // Only a worker that has joined (each generation logs one "joined run").
-        let joined = log(dir, &format!("worker-{w}.log")).matches("joined run").count();
+        let joined = log(dir, &format!("worker-{w}.log"))
+            .matches("joined run")
+            .count();
         if pids.len() == 1 && joined == killed[w] + 1 {
             unsafe { libc::kill(pids[0], libc::SIGKILL) };
             killed[w] += 1;
@@ -197,21 +214,32 @@ fn a_storm_of_worker_kills_loses_nothing_and_a_sync_run_ends_as_its_twin() {
     for storm in storms {
         let (mode, dir, killed, code, rest) = storm.join().unwrap();
         assert_eq!(code, 0, "{mode}: {rest}\n{}", log(&dir, "learner.log"));
-        assert!(killed >= 10, "{mode}: the run ended after only {killed} kills");
+        assert!(
+            killed >= 10,
+            "{mode}: the run ended after only {killed} kills"
+        );
         assert_eq!(
             rest.matches("died (signal 9); restarting it").count(),
             killed,
             "{mode}: {rest}"
         );
         let (h, rows) = metrics(&dir);
-        assert_eq!(column(&h, &rows, "env_steps").last(), Some(&12000.0), "{mode}");
+        assert_eq!(
+            column(&h, &rows, "env_steps").last(),
+            Some(&12000.0),
+            "{mode}"
+        );
         assert!(
             column(&h, &rows, "dropped").iter().all(|&d| d == 0.0),
             "{mode}: transitions dropped"
         );
         let (_, _, state) = final_checkpoint(&dir);
         assert_eq!(state["inserted"], 12000, "{mode}");
-        assert_eq!(state["received"], serde_json::json!([4000, 4000, 4000]), "{mode}");
+        assert_eq!(
+            state["received"],
+            serde_json::json!([4000, 4000, 4000]),
+            "{mode}"
+        );
         if mode == "sync" {
             assert_same_run(&dir, &twin, "sync run under a kill storm");
         }
@@ -292,9 +320,12 @@ fn a_hung_worker_is_noticed_killed_and_replaced_in_both_modes() {
                 let pid = worker_pids(&id, 1)[0];
                 unsafe { libc::kill(pid, libc::SIGSTOP) };
                 let stopped = Instant::now();
-                wait_until("the hung worker to be killed", &dir, Duration::from_secs(30), || {
-                    !worker_pids(&id, 1).contains(&pid)
-                });
+                wait_until(
+                    "the hung worker to be killed",
+                    &dir,
+                    Duration::from_secs(30),
+                    || !worker_pids(&id, 1).contains(&pid),
+                );
                 let replaced_after = stopped.elapsed();
                 let (code, rest) = finish(child, stderr);
                 (mode, dir, replaced_after, code, rest)
@@ -315,7 +346,11 @@ fn a_hung_worker_is_noticed_killed_and_replaced_in_both_modes() {
             "{mode}: replaced after {after:?}"
         );
         let (h, rows) = metrics(&dir);
-        assert_eq!(column(&h, &rows, "env_steps").last(), Some(&5000.0), "{mode}");
+        assert_eq!(
+            column(&h, &rows, "env_steps").last(),
+            Some(&5000.0),
+            "{mode}"
+        );
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
@@ -360,7 +395,15 @@ fn a_full_disk_fails_checkpoints_not_the_run_and_the_run_resumes_once_space_is_b
         "run.checkpoint_replay=true",
     ]);
     let result = std::process::Command::new("unshare")
-        .args(["--user", "--map-root-user", "--mount", "sh", "-c", DISK_FULL, "sh"])
+        .args([
+            "--user",
+            "--map-root-user",
+            "--mount",
+            "sh",
+            "-c",
+            DISK_FULL,
+            "sh",
+        ])
         .arg(&mnt)
         .arg(bin("selkd"))
         .arg(&out)

@@ -48,7 +48,10 @@ fn read_events(run: &Path) -> Scalars {
 /// (as f32, the type TensorBoard stores).
 fn assert_matches_metrics(run: &Path, tb: &Scalars, k: usize) {
     let (h, rows) = metrics(run);
-    let steps: Vec<u64> = column(&h, &rows, "env_steps").iter().map(|&s| s as u64).collect();
+    let steps: Vec<u64> = column(&h, &rows, "env_steps")
+        .iter()
+        .map(|&s| s as u64)
+        .collect();
     let mut pairs = vec![
         ("critic_loss".to_string(), "train/critic_loss".to_string()),
         ("q_mean".into(), "train/q_mean".into()),
@@ -62,18 +65,19 @@ fn assert_matches_metrics(run: &Path, tb: &Scalars, k: usize) {
         pairs.push((format!("kl_to_best_{i}"), format!("train/kl_to_best_{i}")));
     }
     for (col, tag) in pairs {
-        let want: Vec<(u64, f64)> = steps
-            .iter()
-            .copied()
-            .zip(column(&h, &rows, &col))
-            .collect();
-        let got = tb.get(&tag).unwrap_or_else(|| panic!("no {tag}; tags: {:?}", tb.keys()));
+        let want: Vec<(u64, f64)> = steps.iter().copied().zip(column(&h, &rows, &col)).collect();
+        let got = tb
+            .get(&tag)
+            .unwrap_or_else(|| panic!("no {tag}; tags: {:?}", tb.keys()));
         assert_eq!(got.len(), want.len(), "{tag}: {got:?} vs metrics {want:?}");
         for (&(gs, gv), &(ws, wv)) in got.iter().zip(&want) {
             assert_eq!(gs, ws, "{tag}: steps");
             // metrics.csv prints 6 decimals; TensorBoard keeps f32.
             let tol = 1e-6 * wv.abs().max(1.0) + 5e-7;
-            assert!((gv - wv).abs() <= tol, "{tag} at {gs}: {gv} vs metrics {wv}");
+            assert!(
+                (gv - wv).abs() <= tol,
+                "{tag} at {gs}: {gv} vs metrics {wv}"
+            );
         }
     }
 }
@@ -86,7 +90,11 @@ fn tensorboard_events_hold_the_metrics_and_survive_a_resume() {
     let tb = read_events(&dir);
     assert_matches_metrics(&dir, &tb, 2);
     for tag in ["live/critic_loss", "live/updates_per_s", "live/alpha_1"] {
-        assert!(tb.get(tag).is_some_and(|v| !v.is_empty()), "no {tag}: {:?}", tb.keys());
+        assert!(
+            tb.get(tag).is_some_and(|v| !v.is_empty()),
+            "no {tag}: {:?}",
+            tb.keys()
+        );
     }
 
     // Stop at about 1500 steps, then resume to 3000: one value per epoch, as metrics.csv.
@@ -100,7 +108,11 @@ fn tensorboard_events_hold_the_metrics_and_survive_a_resume() {
     }
     unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
     assert_eq!(child.wait().unwrap().code(), Some(143));
-    let mut more = vec!["train".to_string(), "--resume".into(), resumed.display().to_string()];
+    let mut more = vec![
+        "train".to_string(),
+        "--resume".into(),
+        resumed.display().to_string(),
+    ];
     more.extend(["--set".into(), "run.total_env_steps=3000".into()]);
     let mut c = std::process::Command::new(bin("selkd"));
     c.args(&more);
