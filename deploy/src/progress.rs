@@ -209,8 +209,8 @@ fn score(v: f64) -> String {
     }
 }
 
-/// `45s`, `3m05s`, `2h04m`.
-fn duration(s: f64) -> String {
+/// `45s`, `3m05s`, `2h04m` (also the experiment runner's).
+pub(crate) fn duration(s: f64) -> String {
     let s = s.max(0.0).round() as u64;
     match s {
         0..=59 => format!("{s}s"),
@@ -347,5 +347,7 @@ mod tests {
         assert_eq!(duration(45.2), "45s");
         assert_eq!(duration(185.0), "3m05s");
         assert_eq!(duration(7440.0), "2h04m");
+        assert_eq!(duration(125.0), "2m05s");
+        assert_eq!(duration(7300.0), "2h01m");
     }
 }

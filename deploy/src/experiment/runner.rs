@@ -7,6 +7,7 @@
 use super::spec::{self, Run};
 use super::state::{state, State};
 use super::RunArgs;
+use crate::progress::duration;
 use anyhow::{Context, Result};
 use std::collections::{HashMap, VecDeque};
 use std::io::{IsTerminal, Read, Seek, SeekFrom};
@@ -392,26 +393,5 @@ impl Progress {
             eprintln!("{line}");
         }
         self.last_line = Some(Instant::now());
-    }
-}
-
-fn duration(s: f64) -> String {
-    let s = s.max(0.0) as u64;
-    match s {
-        0..=59 => format!("{s}s"),
-        60..=3599 => format!("{}m{:02}s", s / 60, s % 60),
-        _ => format!("{}h{:02}m", s / 3600, (s % 3600) / 60),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn durations_read_at_a_glance() {
-        assert_eq!(duration(42.0), "42s");
-        assert_eq!(duration(125.0), "2m05s");
-        assert_eq!(duration(7300.0), "2h01m");
     }
 }
