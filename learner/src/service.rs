@@ -739,9 +739,9 @@ impl Learner {
         success: &[f64],
         wall: f64,
     ) {
-        let Some(tb) = self.tb.as_mut() else {
+        if self.tb.is_none() {
             return;
-        };
+        }
         let st = &self.last_stats;
         let lag = if self.lag_count > 0 {
             self.lag_sum / self.lag_count as f64
@@ -779,21 +779,14 @@ impl Learner {
             values.push((format!("train/alpha_{i}"), at(&st.alpha)));
             values.push((format!("train/kl_to_best_{i}"), at(&st.kl_to_best)));
         }
-        let written: Result<()> = values
-            .iter()
-            .try_for_each(|(tag, v)| tb.scalar(tag, env_steps, *v))
-            .and_then(|()| tb.flush());
-        if let Err(e) = written {
-            tracing::warn!("TensorBoard events stop here: {e:#}");
-            self.tb = None;
-        }
+        self.write_scalars(env_steps, &values);
     }
 
     /// The latest round's losses, α, KL and the rates, every few seconds (`live/`).
     fn live_scalars(&mut self, (updates_per_s, steps_per_s): (f64, f64)) {
-        let Some(tb) = self.tb.as_mut() else {
+        if self.tb.is_none() {
             return;
-        };
+        }
         let st = &self.last_stats;
         let mut values: Vec<(String, f64)> = vec![
             ("live/critic_loss".into(), st.critic_loss),
@@ -805,7 +798,15 @@ impl Learner {
             values.push((format!("live/alpha_{i}"), *a));
             values.push((format!("live/kl_to_best_{i}"), *kl));
         }
-        let step = self.inserted;
+        self.write_scalars(self.inserted, &values);
+    }
+
+    /// Writes `values` at `step` and flushes; after a failed write (a full disk) the run goes on
+    /// without TensorBoard events.
+    fn write_scalars(&mut self, step: u64, values: &[(String, f64)]) {
+        let Some(tb) = self.tb.as_mut() else {
+            return;
+        };
         let written: Result<()> = values
             .iter()
             .try_for_each(|(tag, v)| tb.scalar(tag, step, *v))

@@ -3,7 +3,6 @@
 
 mod common;
 use common::*;
-use std::io::{BufRead, BufReader};
 use std::time::{Duration, Instant};
 
 #[test]
@@ -14,15 +13,7 @@ fn a_killed_worker_is_restarted_and_rejoins_with_the_current_weights() {
         &small_run(&["algo.actors=2", "run.total_env_steps=6000"]),
     ));
     // The launcher's first line names the run id.
-    let mut stderr = BufReader::new(child.stderr.take().unwrap());
-    let mut first = String::new();
-    stderr.read_line(&mut first).unwrap();
-    let run_id = first
-        .split_whitespace()
-        .nth(2)
-        .unwrap()
-        .trim_end_matches(':')
-        .to_string();
+    let (run_id, mut stderr) = run_id(&mut child);
     let t0 = Instant::now();
     while env_steps_so_far(&dir) < 2000 {
         assert!(
@@ -41,7 +32,7 @@ fn a_killed_worker_is_restarted_and_rejoins_with_the_current_weights() {
     let learner = log(&dir, "learner.log");
     assert!(
         status.success(),
-        "run did not finish after the kill ({status}):\n{first}{rest}\n{learner}"
+        "run {run_id} did not finish after the kill ({status}):\n{rest}\n{learner}"
     );
     assert!(
         rest.contains("worker 1 died (signal 9); restarting it (generation 1)"),
@@ -225,15 +216,7 @@ fn stop_a_run_with(
         dir,
         &small_run(&["algo.actors=2", "run.total_env_steps=1000000"]),
     ));
-    let mut stderr = BufReader::new(child.stderr.take().unwrap());
-    let mut first = String::new();
-    stderr.read_line(&mut first).unwrap();
-    let run_id = first
-        .split_whitespace()
-        .nth(2)
-        .unwrap()
-        .trim_end_matches(':')
-        .to_string();
+    let (run_id, mut stderr) = run_id(&mut child);
     let t0 = Instant::now();
     while env_steps_so_far(dir) < steps {
         assert!(

@@ -6,7 +6,7 @@
 
 mod common;
 use common::*;
-use std::io::{BufRead, BufReader, Read};
+use std::io::{BufReader, Read};
 use std::os::unix::process::CommandExt;
 use std::path::Path;
 use std::process::Child;
@@ -51,36 +51,6 @@ fn assert_same_run(a: &Path, b: &Path, what: &str) {
         "{what}: final replay buffer differs from the twin's"
     );
     assert!(wa == wb, "{what}: final weights differ from the twin's");
-}
-
-/// The run id from `selkd train`'s first stderr line; the rest of stderr is left to read.
-fn run_id(child: &mut Child) -> (String, BufReader<std::process::ChildStderr>) {
-    let mut stderr = BufReader::new(child.stderr.take().unwrap());
-    let mut first = String::new();
-    stderr.read_line(&mut first).unwrap();
-    let id = first
-        .split_whitespace()
-        .nth(2)
-        .unwrap()
-        .trim_end_matches(':');
-    (id.to_string(), stderr)
-}
-
-/// Pid of this run's learner process.
-fn learner_pid(run_id: &str) -> Option<i32> {
-    let want = format!("--run-id\0{run_id}\0");
-    std::fs::read_dir("/proc")
-        .unwrap()
-        .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<i32>().ok())
-        .find(|pid| {
-            std::fs::read(format!("/proc/{pid}/cmdline")).is_ok_and(|c| {
-                let c = String::from_utf8_lossy(&c);
-                c.split('\0')
-                    .next()
-                    .is_some_and(|exe| exe.ends_with("/learner"))
-                    && c.contains(&want)
-            })
-        })
 }
 
 fn wait_until(what: &str, dir: &Path, limit: Duration, mut done: impl FnMut() -> bool) {

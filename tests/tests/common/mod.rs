@@ -3,8 +3,9 @@
 
 pub mod report_check;
 
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Child, ChildStderr, Command, Output, Stdio};
 
 /// A binary of this workspace, built in the same profile as the tests (`cargo build --release`).
 pub fn bin(name: &str) -> PathBuf {
@@ -112,18 +113,48 @@ pub fn assert_success(out: &Output, run_dir: &Path) {
     );
 }
 
-/// Pids of this run's actor-worker processes for `worker`, from /proc.
-pub fn worker_pids(run_id: &str, worker: usize) -> Vec<i32> {
-    let want = format!("--run-id\0{run_id}\0--worker\0{worker}\0");
+/// Pids of the processes whose command line (arguments joined by NUL) satisfies `pred`.
+fn pids_where(pred: impl Fn(&str) -> bool) -> Vec<i32> {
     std::fs::read_dir("/proc")
         .unwrap()
         .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<i32>().ok())
         .filter(|pid| {
             std::fs::read(format!("/proc/{pid}/cmdline"))
-                .map(|c| String::from_utf8_lossy(&c).contains(&want))
-                .unwrap_or(false)
+                .is_ok_and(|c| pred(&String::from_utf8_lossy(&c)))
         })
         .collect()
+}
+
+/// Pids of this run's actor-worker processes for `worker`, from /proc.
+pub fn worker_pids(run_id: &str, worker: usize) -> Vec<i32> {
+    let want = format!("--run-id\0{run_id}\0--worker\0{worker}\0");
+    pids_where(|c| c.contains(&want))
+}
+
+/// Pid of this run's learner process.
+pub fn learner_pid(run_id: &str) -> Option<i32> {
+    let want = format!("--run-id\0{run_id}\0");
+    pids_where(|c| {
+        c.split('\0')
+            .next()
+            .is_some_and(|exe| exe.ends_with("/learner"))
+            && c.contains(&want)
+    })
+    .first()
+    .copied()
+}
+
+/// The run id from `selkd train`'s first stderr line; the rest of stderr is left to read.
+pub fn run_id(child: &mut Child) -> (String, BufReader<ChildStderr>) {
+    let mut stderr = BufReader::new(child.stderr.take().unwrap());
+    let mut first = String::new();
+    stderr.read_line(&mut first).unwrap();
+    let id = first
+        .split_whitespace()
+        .nth(2)
+        .unwrap()
+        .trim_end_matches(':');
+    (id.to_string(), stderr)
 }
 
 pub fn env_steps_so_far(dir: &std::path::Path) -> u64 {
