@@ -50,7 +50,7 @@ fn parse_actor(s: &str) -> Result<Which> {
 }
 
 /// The checkpoint directory `path` names, and the run's config.
-fn locate(path: &Path) -> Result<(PathBuf, Config)> {
+pub(crate) fn locate(path: &Path) -> Result<(PathBuf, Config)> {
     if path.is_file() {
         bail!(
             "{}: a bare file carries no env or config; pass its checkpoint directory (RUN/checkpoints/NAME) or the run directory",

@@ -11,9 +11,9 @@ mod bench;
 mod config_cmd;
 mod eval;
 mod experiment;
+mod export;
 mod plot;
 mod progress;
-mod raycast;
 mod render;
 mod report;
 mod train;
@@ -49,6 +49,8 @@ enum Command {
     Config(config_cmd::ConfigArgs),
     /// Evaluate a run's actors: mean ± std return (and success rate) of the deterministic policy.
     Eval(eval::EvalArgs),
+    /// Export one trained actor as a bundle for PyTorch (`selkd.load_policy`), optionally ONNX.
+    Export(export::ExportArgs),
     /// Draw one episode of a trained actor (or of random actions) to a GIF or a PNG strip.
     Render(render::RenderArgs),
     /// Experiments: every (method, task, seed) of an experiment file (experiments/*.toml).
@@ -72,6 +74,7 @@ fn main() {
         Command::Bench(b) => bench::run(b).map(|()| 0),
         Command::Config(args) => config_cmd::run(args).map(|()| 0),
         Command::Eval(args) => eval::run(args).map(|()| 0),
+        Command::Export(args) => export::run(args).map(|()| 0),
         Command::Render(args) => render::run(args).map(|()| 0),
         Command::Plot { runs, out, metric } => plot::run(&runs, out, metric).map(|p| {
             eprintln!("selkd: wrote {}", p.display());

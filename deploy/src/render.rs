@@ -2,12 +2,11 @@
 //! GIF, or to a PNG strip of a few frames, so that a person can see what the robot does.
 //!
 //! The env says what is in its world ([`selkd_envs::Env::scene`]) and how long a step lasts
-//! ([`selkd_envs::Env::control_dt`]); [`crate::raycast`] draws it. The camera's distance (the
+//! ([`selkd_envs::Env::control_dt`]); [`selkd_render`] draws it. The camera's distance (the
 //! scene's extent) and height (its focus) are fixed by the first frame, and it follows the
 //! scene's focus sideways (a running robot stays in the picture while the checkered floor shows
 //! it moving).
 
-use crate::raycast::{render, Camera};
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 use rand::{Rng, SeedableRng};
@@ -15,6 +14,7 @@ use selkd_envs::scene::Scene;
 use selkd_envs::EnvOptions;
 use selkd_learner::checkpoint::{load_actor, LoadedActor};
 use selkd_learner::config::Config;
+use selkd_render::{render, Camera};
 use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug)]
@@ -241,16 +241,10 @@ fn run_inner(args: RenderArgs) -> Result<()> {
 
     // The pictures.
     let first = &frames[0];
-    let height = first.focus[2];
     let pictures = |indices: &[usize]| -> Vec<Vec<u8>> {
         indices
             .iter()
-            .map(|&i| {
-                let f = &frames[i];
-                let cam =
-                    Camera::looking_at([f.focus[0], f.focus[1], height], first.extent, first.view);
-                render(f, &cam, w, h)
-            })
+            .map(|&i| render(&frames[i], &Camera::following(first, &frames[i]), w, h))
             .collect()
     };
     if let Some(parent) = args.out.parent().filter(|p| !p.as_os_str().is_empty()) {

@@ -252,6 +252,7 @@ impl Ant {
                 obs_dim,
                 act_dim: 8,
                 max_episode_steps: 1000,
+                gymnasium_action_scale: 1.0,
             },
             obs_kind,
             contact_bodies: contact_bodies(&robot.links),

@@ -914,6 +914,7 @@ impl FpcAssembly {
                 obs_dim: OBS_DIM,
                 act_dim: ACT_DIM,
                 max_episode_steps: cfg.max_episode_steps,
+                gymnasium_action_scale: 1.0,
             },
             cfg,
             params,

@@ -198,6 +198,7 @@ impl HalfCheetah {
                 obs_dim: OBS_DIM,
                 act_dim: NA,
                 max_episode_steps: 1000,
+                gymnasium_action_scale: 1.0,
             },
             robot: Robot::new(sim, build),
             t: 0,

@@ -138,6 +138,7 @@ impl Hopper {
                 obs_dim: 11,
                 act_dim: 3,
                 max_episode_steps: 1000,
+                gymnasium_action_scale: 1.0,
             },
             robot: Robot::new(sim, build),
             t: 0,

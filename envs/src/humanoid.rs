@@ -554,6 +554,7 @@ impl Humanoid {
                 obs_dim: options.obs_dim(),
                 act_dim: NU,
                 max_episode_steps: 1000,
+                gymnasium_action_scale: CTRL_RANGE,
             },
             options: options.clone(),
             robot,

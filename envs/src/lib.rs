@@ -46,6 +46,11 @@ pub struct EnvSpec {
     pub act_dim: usize,
     /// Time limit: the step at which an episode is truncated.
     pub max_episode_steps: usize,
+    /// Gymnasium's own version of the task (`Pendulum-v1`, `Hopper-v5`, ...) takes
+    /// `gymnasium_action_scale · a` for our action `a`: its action space is ±this (the
+    /// pendulum's 2 N·m, the humanoid's 0.4 ctrl range; 1 for the other robots, and for
+    /// `fpc-assembly`, which has no counterpart).
+    pub gymnasium_action_scale: f32,
 }
 
 /// The result of one `step`.

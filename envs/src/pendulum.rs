@@ -65,6 +65,7 @@ impl Pendulum {
                 obs_dim: 3,
                 act_dim: 1,
                 max_episode_steps: 200,
+                gymnasium_action_scale: MAX_TORQUE as f32,
             },
             theta: 0.0,
             theta_dot: 0.0,

@@ -156,6 +156,7 @@ impl Walker2d {
                 obs_dim: OBS_DIM,
                 act_dim: NA,
                 max_episode_steps: 1000,
+                gymnasium_action_scale: 1.0,
             },
             robot: Robot::new(sim, build),
             t: 0,

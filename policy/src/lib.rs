@@ -82,6 +82,11 @@ impl Actor {
         &self.layout
     }
 
+    /// The flat parameter vector (layout in the crate doc).
+    pub fn params(&self) -> &[f32] {
+        &self.params
+    }
+
     /// Replaces the weights in place (same layout), keeping the allocation.
     pub fn set_params(&mut self, params: &[f32]) -> Result<(), LayoutMismatch> {
         if params.len() != self.params.len() {

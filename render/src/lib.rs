@@ -2,6 +2,9 @@
 //! spheres, capsules, boxes and a checkered floor, Lambert shading from one sun with a shadow
 //! ray, and a sky gradient. Enough to see what a robot does, with no GPU or window, fast enough
 //! for a thousand-step episode in a few seconds.
+//!
+//! Used by `selkd render` (GIFs and PNG strips) and by the Python package's
+//! `render_mode="rgb_array"`; [`Camera::following`] frames an episode the same way for both.
 
 use selkd_envs::scene::{Scene, Shape, ShapeKind, View};
 
@@ -73,6 +76,17 @@ impl Camera {
             up: cross(right, dir),
             tan_half,
         }
+    }
+
+    /// The camera for frame `now` of an episode that started with `first`: distance (the
+    /// first frame's extent), height (its focus) and view stay fixed, and the camera follows the
+    /// focus sideways, so a running robot stays in the picture while the floor shows it moving.
+    pub fn following(first: &Scene, now: &Scene) -> Self {
+        Self::looking_at(
+            [now.focus[0], now.focus[1], first.focus[2]],
+            first.extent,
+            first.view,
+        )
     }
 
     /// The ray through pixel centre `(px, py)` of a `w`×`h` picture (y down).
