@@ -6,7 +6,6 @@ mod common;
 use common::*;
 use serde_json::Value;
 use std::collections::HashMap;
-use std::path::Path;
 use std::process::{Command, Output};
 
 fn eval(args: &[&str]) -> Output {
@@ -23,37 +22,6 @@ fn eval_json(args: &[&str]) -> Value {
         String::from_utf8_lossy(&out.stderr)
     );
     serde_json::from_slice(&out.stdout).expect("--json prints one JSON object")
-}
-
-/// The f32 tensors of a safetensors file by name, as (shape, values): the format is an 8-byte
-/// little-endian header length, a JSON header, then the raw data.
-fn read_safetensors(path: &Path) -> HashMap<String, (Vec<usize>, Vec<f32>)> {
-    let bytes = std::fs::read(path).unwrap();
-    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
-    let header: Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
-    let data = &bytes[8 + n..];
-    let mut out = HashMap::new();
-    for (name, t) in header.as_object().unwrap() {
-        if name == "__metadata__" || t["dtype"] != "F32" {
-            continue;
-        }
-        let shape: Vec<usize> = t["shape"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|d| d.as_u64().unwrap() as usize)
-            .collect();
-        let (s, e) = (
-            t["data_offsets"][0].as_u64().unwrap() as usize,
-            t["data_offsets"][1].as_u64().unwrap() as usize,
-        );
-        let values = data[s..e]
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
-            .collect();
-        out.insert(name.clone(), (shape, values));
-    }
-    out
 }
 
 /// Actor `i`'s deterministic action tanh(μ(obs)) from the stacked tensors `actors.{l}.weight`
