@@ -18,7 +18,7 @@ printf '%-6s %-12s %10s %10s %6s\n' round task ours mujoco ratio
 for r in $(seq 1 "$rounds"); do
     for pair in hopper:Hopper-v5 walker2d:Walker2d-v5 halfcheetah:HalfCheetah-v5 ant:Ant-v5 humanoid:Humanoid-v5; do
         ours=$(target/release/selkd bench env "${pair%%:*}" --steps "$steps" | awk '/env steps/ {print $1}')
-        theirs=$("$venv/bin/python" deploy/mujoco_env_steps.py "${pair##*:}" "$steps" 2>/dev/null | awk '{print $2}')
+        theirs=$("$venv/bin/python" deploy/gym_env_steps.py "${pair##*:}" "$steps" 2>/dev/null | awk '{print $2}')
         printf '%-6s %-12s %10s %10s %6s\n' "$r" "${pair%%:*}" "$ours" "$theirs" \
             "$(awk -v a="$ours" -v b="$theirs" 'BEGIN {printf "%.2f", a / b}')"
     done

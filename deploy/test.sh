@@ -5,6 +5,8 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
 bash deploy/setup.sh
 bash deploy/test-deps.sh
+# The selkd Python package and its venv (tests/tests/python.rs runs its pytest files there).
+bash deploy/python.sh
 # The end-to-end tests start the real binaries: build them first, in the tests' profile.
 cargo build --release --workspace --locked
 log=$(mktemp)
