@@ -24,6 +24,9 @@ pub struct TrainingState {
     pub critic_updates: u64,
     pub actor_updates: u64,
     pub adam_steps: [i64; 3],
+    /// DNS: each critic's own Adam step count (its optimiser steps only when it is trained).
+    #[serde(default)]
+    pub critic_member_steps: Vec<i64>,
     /// Transitions received from each actor.
     pub received: Vec<u64>,
     /// Where each actor's rollout stands: the resumed run's workers continue from it exactly.
@@ -281,6 +284,7 @@ pub fn load(dir: &Path, selkd: &mut Selkd, replay: &mut ReplayBuffer) -> Result<
     {
         opt.step = steps;
     }
+    selkd.critic_opt.member_steps = state.critic_member_steps.clone();
     let replay_file = dir.join("replay.safetensors");
     if replay_file.exists() {
         let rows = Tensor::read_safetensors(&replay_file).context("reading replay.safetensors")?;

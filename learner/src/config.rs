@@ -123,6 +123,10 @@ pub struct AlgoConfig {
     /// Element type of the critics' matmuls: `fp32` (exact) or `bf16` (about twice the matmul
     /// throughput on CPUs with AVX-512 BF16 and on GPUs; fp32 weights, optimiser and accumulation).
     pub critic_matmul: Precision,
+    /// DNS: each critic update trains only this many critics (k), drawn by a k-DPP over the
+    /// critics' similarity on the batch (`dpp`); the others keep their weights and optimiser
+    /// state. Absent: all N.
+    pub trained_critics: Option<usize>,
 }
 
 /// The actor objective's reduction over critics.
@@ -224,6 +228,7 @@ impl Default for AlgoConfig {
             alpha_lr: 3e-4,
             target_entropy: None,
             critic_matmul: Precision::Fp32,
+            trained_critics: None,
         }
     }
 }
@@ -353,6 +358,19 @@ impl Config {
                 "algo.paired_critics needs at least 2 actors, algo.critics ({}) a multiple of algo.actors ({}), and sharing = \"per-update\"",
                 a.critics, a.actors
             ));
+        }
+        if let Some(k) = a.trained_critics {
+            if k == 0 || k > a.critics {
+                return bad(format!(
+                    "algo.trained_critics (k = {k}) must be between 1 and algo.critics (N = {}), or absent to train all",
+                    a.critics
+                ));
+            }
+            if a.paired_critics || a.sharing != Sharing::PerUpdate {
+                return bad(
+                    "algo.trained_critics (DNS) compares the critics on one batch: it needs sharing = \"per-update\" and no paired_critics".to_string(),
+                );
+            }
         }
         if a.target == Formation::MaxAqe && a.aqe_drop >= a.subset {
             return bad(format!("algo.aqe_drop ({}) must be below algo.subset (M = {}) so AQE keeps at least one value", a.aqe_drop, a.subset));
@@ -518,6 +536,20 @@ mod tests {
         assert!(err("", &["algo.target=\"max-median\""]).contains("max-min"));
         assert!(err("", &["nonsense"]).contains("key=value"));
         assert!(err("", &["algo.target=\"max-aqe\"", "algo.aqe_drop=2"]).contains("algo.aqe_drop"));
+        for k in ["0", "11"] {
+            let e = err("", &[&format!("algo.trained_critics={k}")]);
+            assert!(
+                e.contains(&format!(
+                    "algo.trained_critics (k = {k}) must be between 1 and algo.critics (N = 10)"
+                )),
+                "{e}"
+            );
+        }
+        let e = err(
+            "",
+            &["algo.trained_critics=3", "algo.sharing=\"per-critic\""],
+        );
+        assert!(e.contains("per-update"), "{e}");
         let e = err("", &["env_options.gravity=3"]);
         assert!(
             e.contains("env_options for `pendulum`") && e.contains("gravity"),

@@ -8,6 +8,7 @@ pub mod bench;
 pub mod checkpoint;
 pub mod config;
 pub mod distillation;
+pub mod dpp;
 pub mod ensemble;
 pub mod optim;
 pub mod ranking;

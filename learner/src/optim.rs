@@ -11,6 +11,9 @@ pub struct Adam {
     pub beta2: f64,
     pub eps: f64,
     pub step: i64,
+    /// Steps taken by each ensemble member, when members step separately ([`Adam::step_members`],
+    /// DNS); empty otherwise.
+    pub member_steps: Vec<i64>,
     pub exp_avg: Vec<Tensor>,
     pub exp_avg_sq: Vec<Tensor>,
 }
@@ -23,6 +26,7 @@ impl Adam {
             beta2: 0.999,
             eps: 1e-8,
             step: 0,
+            member_steps: vec![],
             exp_avg: params.iter().map(|p| p.zeros_like()).collect(),
             exp_avg_sq: params.iter().map(|p| p.zeros_like()).collect(),
         }
@@ -31,17 +35,7 @@ impl Adam {
     /// One step from the gradients accumulated in `params`, then clears them.
     pub fn step(&mut self, params: &[&Tensor]) {
         self.step += 1;
-        let bias1 = 1.0 - self.beta1.powi(self.step as i32);
-        let bias2 = 1.0 - self.beta2.powi(self.step as i32);
-        // torch's p −= lr/b1 · m / (√v/√b2 + ε), rewritten as
-        // p −= (lr·√b2/b1) · m / (√v + ε·√b2) to need fewer temporaries.
-        let c = Constants {
-            one_minus_beta1: (1.0 - self.beta1) as f32,
-            beta2: self.beta2 as f32,
-            one_minus_beta2: (1.0 - self.beta2) as f32,
-            eps_hat: (self.eps * bias2.sqrt()) as f32,
-            step_size: (self.lr * bias2.sqrt() / bias1) as f32,
-        };
+        let c = self.constants(self.step);
         tch::no_grad(|| {
             for ((p, m), v) in params
                 .iter()
@@ -57,6 +51,65 @@ impl Adam {
                     tensor_step(&mut p, &g, m, v, &c);
                     p.zero_grad();
                 }
+            }
+        });
+    }
+}
+
+impl Adam {
+    /// One step's scalars at step count `step`. torch's p −= lr/b1 · m / (√v/√b2 + ε), rewritten
+    /// as p −= (lr·√b2/b1) · m / (√v + ε·√b2) to need fewer temporaries.
+    fn constants(&self, step: i64) -> Constants {
+        let bias1 = 1.0 - self.beta1.powi(step as i32);
+        let bias2 = 1.0 - self.beta2.powi(step as i32);
+        Constants {
+            one_minus_beta1: (1.0 - self.beta1) as f32,
+            beta2: self.beta2 as f32,
+            one_minus_beta2: (1.0 - self.beta2) as f32,
+            eps_hat: (self.eps * bias2.sqrt()) as f32,
+            step_size: (self.lr * bias2.sqrt() / bias1) as f32,
+        }
+    }
+
+    /// One step of only the listed ensemble members (`params` stacked `[members, …]`), each
+    /// with its own step count: exactly what one `torch.optim.Adam` per member would do if only
+    /// the listed members' optimisers stepped (DNS). The other members' weights and moments stay
+    /// as they are, whatever their gradients; every gradient is cleared.
+    pub fn step_members(&mut self, params: &[&Tensor], members: &[usize], total: usize) {
+        if self.member_steps.len() != total {
+            self.member_steps = vec![self.step; total];
+        }
+        self.step += 1;
+        for &j in members {
+            self.member_steps[j] += 1;
+        }
+        let consts: Vec<Constants> = members
+            .iter()
+            .map(|&j| self.constants(self.member_steps[j]))
+            .collect();
+        tch::no_grad(|| {
+            for ((p, m), v) in params
+                .iter()
+                .zip(&mut self.exp_avg)
+                .zip(&mut self.exp_avg_sq)
+            {
+                let mut full = p.shallow_clone();
+                let g = full.grad();
+                if !g.defined() {
+                    continue;
+                }
+                for (&j, c) in members.iter().zip(&consts) {
+                    let (mut pj, gj, mut mj, mut vj) = (
+                        p.get(j as i64),
+                        g.get(j as i64),
+                        m.get(j as i64),
+                        v.get(j as i64),
+                    );
+                    if !fused_step_in_place(&pj, &gj, &mj, &vj, c) {
+                        tensor_step(&mut pj, &gj, &mut mj, &mut vj, c);
+                    }
+                }
+                full.zero_grad();
             }
         });
     }
@@ -166,6 +219,69 @@ mod tests {
         for k in 0..3 {
             assert!((got[k] as f64 - x[k]).abs() < 1e-5, "{got:?} vs {x:?}");
         }
+    }
+
+    /// The one-pass step takes exactly the tensors it can run over as flat f32 memory: CPU,
+    /// f32, contiguous (and all four the same size); anything else goes to the tensor path.
+    #[test]
+    fn the_fused_step_applies_to_contiguous_f32_cpu_tensors_only() {
+        let c = Adam::new(&[], 0.1).constants(1);
+        let t = |n: i64| Tensor::zeros([n, 3], (tch::Kind::Float, tch::Device::Cpu));
+        let (p, g, m, v) = (t(4), t(4), t(4), t(4));
+        assert!(fused_step_in_place(&p, &g, &m, &v, &c));
+        let transposed =
+            Tensor::zeros([3, 4], (tch::Kind::Float, tch::Device::Cpu)).transpose(0, 1);
+        assert!(!transposed.is_contiguous());
+        assert!(!fused_step_in_place(&transposed, &g, &m, &v, &c));
+        assert!(!fused_step_in_place(&p, &transposed, &m, &v, &c));
+        let double = t(4).to_kind(tch::Kind::Double);
+        assert!(!fused_step_in_place(&p, &g, &double, &v, &c));
+        assert!(!fused_step_in_place(&p, &g, &m, &t(5), &c));
+    }
+
+    /// Members stepping separately (DNS): three members of a stacked `[3, 2]` parameter, with
+    /// members {0, 2}, then {1}, then {0, 1} stepping, against one scalar Adam per member that
+    /// steps only when listed: an unlisted member keeps its weights and moments although its
+    /// gradient is not zero, and a member's bias correction counts only its own steps.
+    #[test]
+    fn members_step_separately_as_one_adam_per_member() {
+        let start = [0.5f64, -1.0, 2.0, 0.25, -0.75, 1.5];
+        let p = Tensor::from_slice(&start.map(|x| x as f32))
+            .reshape([3, 2])
+            .set_requires_grad(true);
+        let mut opt = Adam::new(&[&p], 0.1);
+        let mut x = start;
+        let (mut m, mut v, mut steps) = ([0.0f64; 6], [0.0f64; 6], [0i32; 3]);
+        for members in [vec![0, 2], vec![1], vec![0, 1]] {
+            // loss = Σ x³ over every member → grad 3x² everywhere, listed or not.
+            p.pow_tensor_scalar(3).sum(tch::Kind::Float).backward();
+            opt.step_members(&[&p], &members, 3);
+            for &j in &members {
+                steps[j] += 1;
+                let t = steps[j];
+                for k in 2 * j..2 * j + 2 {
+                    let g = 3.0 * x[k] * x[k];
+                    m[k] = 0.9 * m[k] + 0.1 * g;
+                    v[k] = 0.999 * v[k] + 0.001 * g * g;
+                    let mh = m[k] / (1.0 - 0.9f64.powi(t));
+                    let vh = v[k] / (1.0 - 0.999f64.powi(t));
+                    x[k] -= 0.1 * mh / (vh.sqrt() + 1e-8);
+                }
+            }
+            assert_eq!(p.grad().abs().sum(tch::Kind::Float).double_value(&[]), 0.0);
+        }
+        let got = Vec::<f32>::try_from(&p.detach().reshape([-1])).unwrap();
+        for k in 0..6 {
+            assert!((got[k] as f64 - x[k]).abs() < 1e-5, "{got:?} vs {x:?}");
+        }
+        let m_got = Vec::<f32>::try_from(&opt.exp_avg[0].reshape([-1])).unwrap();
+        for k in 0..6 {
+            assert!(
+                (m_got[k] as f64 - m[k]).abs() < 1e-5,
+                "moments {m_got:?} vs {m:?}"
+            );
+        }
+        assert_eq!(opt.member_steps, vec![2, 2, 1]);
     }
 
     /// The one-pass CPU step and the tensor-operation step (what CUDA runs) agree to f32

@@ -8,7 +8,7 @@
 //!  7: for G updates:
 //!  8-10:  sample mini-batch(es) B and critic subset(s) 𝓜            (per-update: one; per-critic: N)
 //!  11:    y = r + γ(1 − terminated) · max_i [ min_{m∈𝓜} Q̄_m(s', ã'_i) − α_i log π_i(ã'_i|s') ]
-//!  12:    minimise Σ_j mean_B ½ (Q_j(s, a) − y)²
+//!  12:    minimise Σ_j mean_B ½ (Q_j(s, a) − y)²                 (DNS: only j ∈ a k-DPP draw)
 //!  13:    Q̄_j ← ρ Q̄_j + (1 − ρ) Q_j
 //!  16: for each actor i (all at once, each on its own mini-batch):
 //!  18:    J_i = KL(π_i(·|s) ‖ π_best(·|s))                               (0 for the best actor)
@@ -18,6 +18,7 @@
 
 use crate::config::{ActorQ, AlgoConfig, Backbone, Sharing};
 use crate::distillation::gaussian_kl;
+use crate::dpp;
 use crate::ensemble::Ensemble;
 use crate::optim::Adam;
 use crate::replay::{Batch, ReplayBuffer};
@@ -175,11 +176,36 @@ impl Selkd {
         // losses, so each critic's gradient is its own).
         let x = Tensor::cat(&[&batch.obs, &batch.act], -1).expand([n as i64, b as i64, -1], false);
         let q = self.critics.forward(&x).squeeze_dim(-1);
-        let loss = ((&q - &y).square() * 0.5)
-            .mean_dim(1, false, Kind::Float)
-            .sum(Kind::Float);
-        loss.backward();
-        self.critic_opt.step(&self.critics.params());
+        let per_critic = ((&q - &y).square() * 0.5).mean_dim(1, false, Kind::Float);
+        let loss = per_critic.sum(Kind::Float);
+        match self.cfg.trained_critics {
+            None => {
+                loss.backward();
+                self.critic_opt.step(&self.critics.params());
+            }
+            // DNS: only k critics learn from this batch, drawn by a k-DPP over how alike the
+            // critics' values on it are; the others keep their weights and Adam state.
+            Some(k) => {
+                let values: Vec<Vec<f64>> = (0..n as i64)
+                    .map(|j| {
+                        Vec::<f64>::try_from(
+                            &q.get(j).detach().to(Device::Cpu).to_kind(Kind::Double),
+                        )
+                        .expect("f64 values")
+                    })
+                    .collect();
+                let trained = dpp::sample_k_dpp(&dpp::linear_cka(&values), k, &mut self.rng);
+                let index =
+                    Tensor::from_slice(&trained.iter().map(|&j| j as i64).collect::<Vec<_>>())
+                        .to_device(self.device);
+                per_critic
+                    .index_select(0, &index)
+                    .sum(Kind::Float)
+                    .backward();
+                self.critic_opt
+                    .step_members(&self.critics.params(), &trained, n);
+            }
+        }
         // Line 13: Polyak averaging of the target critics after every critic update.
         self.target_critics
             .polyak_toward(&self.critics, self.cfg.polyak);
@@ -1276,6 +1302,54 @@ mod tests {
         }
     }
 
+    /// DNS: every update trains exactly k critics (their weights and Adam moments move) and
+    /// leaves the other N − k bit for bit as they were, moments included; each critic's Adam
+    /// counts only its own steps; over many updates every critic gets its turn.
+    #[test]
+    fn dns_trains_only_the_drawn_critics() {
+        let (n, k) = (5usize, 2usize);
+        let cfg = AlgoConfig {
+            trained_critics: Some(k),
+            ..small(1, n, 2)
+        };
+        let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 4);
+        let mut rb = filled_replay(3, 2, 100);
+        let moments = |s: &Selkd, j: i64| -> Vec<f32> {
+            s.critic_opt
+                .exp_avg
+                .iter()
+                .chain(&s.critic_opt.exp_avg_sq)
+                .flat_map(|m| Vec::<f32>::try_from(&m.get(j).reshape([-1])).unwrap())
+                .collect()
+        };
+        let mut counts = vec![0i64; n];
+        for _ in 0..30 {
+            let before: Vec<(Vec<f32>, Vec<f32>)> = (0..n as i64)
+                .map(|j| (s.critics.member_flat(j), moments(&s, j)))
+                .collect();
+            let (loss, _) = s.update_critics(&mut rb);
+            assert!(loss.is_finite());
+            let mut trained = 0;
+            for j in 0..n {
+                let now = (s.critics.member_flat(j as i64), moments(&s, j as i64));
+                if now.0 != before[j].0 {
+                    assert_ne!(now.1, before[j].1, "critic {j} moved without its moments");
+                    counts[j] += 1;
+                    trained += 1;
+                } else {
+                    assert_eq!(now.1, before[j].1, "untrained critic {j}'s moments moved");
+                }
+            }
+            assert_eq!(trained, k, "an update trains k critics");
+        }
+        assert_eq!(s.critic_opt.member_steps, counts);
+        assert!(
+            counts.iter().all(|&c| c > 0),
+            "every critic gets trained: {counts:?}"
+        );
+        assert_eq!(s.critic_opt.step, 30);
+    }
+
     /// The ensemble baselines' targets (Average-DQN, REM, AQE; K = 1, M = N) train and stay finite.
     #[test]
     fn baseline_targets_train() {
@@ -1338,6 +1412,7 @@ mod tests {
             critic_updates: a.critic_updates,
             actor_updates: a.actor_updates,
             adam_steps: checkpoint::adam_steps(&a),
+            critic_member_steps: a.critic_opt.member_steps.clone(),
             received: vec![0; 2],
             rollouts: vec![],
             pending: vec![],

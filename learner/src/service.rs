@@ -954,6 +954,7 @@ impl Learner {
             critic_updates: self.selkd.critic_updates,
             actor_updates: self.selkd.actor_updates,
             adam_steps: checkpoint::adam_steps(&self.selkd),
+            critic_member_steps: self.selkd.critic_opt.member_steps.clone(),
             received: self.rollouts.iter().map(|r| r.sent).collect(),
             rollouts: self.rollouts.clone(),
             last_round: Some((&self.last_stats).into()),

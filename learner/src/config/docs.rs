@@ -39,6 +39,7 @@ pub const KEY_DOCS: &[(&str, &str)] = &[
     ("algo.fixed_alpha", "a fixed temperature α; unset: tuned automatically per actor"),
     ("algo.alpha_lr", "Adam learning rate of the temperatures"),
     ("algo.target_entropy", "target entropy of the automatic temperature; unset: −|A|"),
+    ("algo.trained_critics", "DNS: critics trained per update (k), drawn by a k-DPP over their similarity on the batch; absent: all N"),
     ("algo.critic_matmul", "element type of the critics' matmuls: fp32, or bf16 (fast only on CPUs/GPUs with native bf16)"),
     ("eval.epoch_env_steps", "env steps (all actors together) per epoch; every actor is evaluated after each"),
     ("eval.episodes", "deterministic evaluation episodes per actor per epoch"),
@@ -65,6 +66,7 @@ mod tests {
         c.algo.kd_actors = Some(vec![0]);
         c.algo.fixed_alpha = Some(0.1);
         c.algo.target_entropy = Some(-1.0);
+        c.algo.trained_critics = Some(3);
         let table: toml::Table = toml::from_str(&c.to_toml()).unwrap();
         let mut keys = vec![];
         for (section, v) in &table {
