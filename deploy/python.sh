@@ -32,7 +32,13 @@ if [ "$(cat "$venv/.complete" 2>/dev/null)" != "$stamp" ]; then
 fi
 # Build the extension in the workspace's release profile (it shares target/ with cargo build) and
 # install it with the package's Python sources.
-VIRTUAL_ENV="$venv" PATH="$venv/bin:$PATH" maturin develop --quiet --release \
-  --manifest-path python/Cargo.toml >&2
+log=$(mktemp)
+trap 'rm -f "$log"' EXIT
+if ! VIRTUAL_ENV="$venv" PATH="$venv/bin:$PATH" maturin develop --release \
+    --manifest-path python/Cargo.toml > "$log" 2>&1; then
+  cat "$log" >&2
+  echo "python: building the selkd package failed (above)" >&2
+  exit 1
+fi
 "$venv/bin/python" -c 'import selkd' || { echo "python: the selkd package does not import; see above" >&2; exit 1; }
 echo "python: selkd ready in $venv ($venv/bin/python)" >&2

@@ -36,6 +36,22 @@ impl Adam {
     pub fn step(&mut self, params: &[&Tensor]) {
         self.step += 1;
         let c = self.constants(self.step);
+        self.each_param(params, |p, g, m, v| {
+            // The one-pass step clears the gradient as it goes.
+            fused_step_in_place(p, g, m, v, &c) || {
+                tensor_step(&mut p.shallow_clone(), g, m, v, &c);
+                false
+            }
+        });
+    }
+
+    /// Runs `update(p, g, m, v)` without autograd on every parameter that has a gradient, with
+    /// its moments; clears the gradient afterwards unless `update` says it already has.
+    fn each_param(
+        &mut self,
+        params: &[&Tensor],
+        mut update: impl FnMut(&Tensor, &Tensor, &mut Tensor, &mut Tensor) -> bool,
+    ) {
         tch::no_grad(|| {
             for ((p, m), v) in params
                 .iter()
@@ -44,11 +60,7 @@ impl Adam {
             {
                 let mut p = p.shallow_clone();
                 let g = p.grad();
-                if !g.defined() {
-                    continue;
-                }
-                if !fused_step_in_place(&p, &g, m, v, &c) {
-                    tensor_step(&mut p, &g, m, v, &c);
+                if g.defined() && !update(&p, &g, m, v) {
                     p.zero_grad();
                 }
             }
@@ -87,30 +99,15 @@ impl Adam {
             .iter()
             .map(|&j| self.constants(self.member_steps[j]))
             .collect();
-        tch::no_grad(|| {
-            for ((p, m), v) in params
-                .iter()
-                .zip(&mut self.exp_avg)
-                .zip(&mut self.exp_avg_sq)
-            {
-                let mut full = p.shallow_clone();
-                let g = full.grad();
-                if !g.defined() {
-                    continue;
+        self.each_param(params, |p, g, m, v| {
+            for (&j, c) in members.iter().zip(&consts) {
+                let j = j as i64;
+                let (mut pj, gj, mut mj, mut vj) = (p.get(j), g.get(j), m.get(j), v.get(j));
+                if !fused_step_in_place(&pj, &gj, &mj, &vj, c) {
+                    tensor_step(&mut pj, &gj, &mut mj, &mut vj, c);
                 }
-                for (&j, c) in members.iter().zip(&consts) {
-                    let (mut pj, gj, mut mj, mut vj) = (
-                        p.get(j as i64),
-                        g.get(j as i64),
-                        m.get(j as i64),
-                        v.get(j as i64),
-                    );
-                    if !fused_step_in_place(&pj, &gj, &mj, &vj, c) {
-                        tensor_step(&mut pj, &gj, &mut mj, &mut vj, c);
-                    }
-                }
-                full.zero_grad();
             }
+            false // the unlisted members' gradients are still there
         });
     }
 }

@@ -91,23 +91,23 @@ class SelkdEnv(gym.Env):
         self.options = dict(options)
         self.render_mode = render_mode
         self.width, self.height = int(width), int(height)
-        dt = self._env.control_dt
+        dt = self._env.spec.control_dt
         self.metadata = {**self.metadata, "render_fps": round(1.0 / dt) if dt else 30}
         self.observation_space = gym.spaces.Box(
-            -np.inf, np.inf, (self._env.obs_dim,), np.float32
+            -np.inf, np.inf, (self._env.spec.obs_dim,), np.float32
         )
-        self.action_space = gym.spaces.Box(-1.0, 1.0, (self._env.act_dim,), np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (self._env.spec.act_dim,), np.float32)
         self._seeded = False
 
     @property
     def max_episode_steps(self) -> int:
         """The env's own time limit (it truncates there)."""
-        return self._env.max_episode_steps
+        return self._env.spec.max_episode_steps
 
     @property
     def gymnasium_action_scale(self) -> float:
         """Gymnasium's own version of the task takes this times our action."""
-        return self._env.gymnasium_action_scale
+        return self._env.spec.gymnasium_action_scale
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
@@ -126,7 +126,7 @@ class SelkdEnv(gym.Env):
 
     def step(self, action):
         a = np.asarray(action, dtype=np.float32)
-        n = self._env.act_dim
+        n = self._env.spec.act_dim
         if a.shape != (n,):
             if a.size != n:
                 raise _native.SelkdError(
@@ -161,17 +161,17 @@ class SelkdVectorEnv(VectorEnv):
         **options: Any,
     ):
         self._envs = _native.VecEnv(name, int(num_envs), _options_json(name, options), int(threads))
-        if max_episode_steps is not None and max_episode_steps != self._envs.max_episode_steps:
+        if max_episode_steps is not None and max_episode_steps != self._envs.spec.max_episode_steps:
             raise _native.SelkdError(
                 f"max_episode_steps={max_episode_steps}: selkd/{name}'s time limit is "
-                f"{self._envs.max_episode_steps} and cannot be changed in the vector form"
+                f"{self._envs.spec.max_episode_steps} and cannot be changed in the vector form"
             )
         self.name = name
         self.num_envs = self._envs.num_envs
         self.single_observation_space = gym.spaces.Box(
-            -np.inf, np.inf, (self._envs.obs_dim,), np.float32
+            -np.inf, np.inf, (self._envs.spec.obs_dim,), np.float32
         )
-        self.single_action_space = gym.spaces.Box(-1.0, 1.0, (self._envs.act_dim,), np.float32)
+        self.single_action_space = gym.spaces.Box(-1.0, 1.0, (self._envs.spec.act_dim,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._seeded = False
@@ -213,7 +213,7 @@ def register_all() -> None:
         env_id = gymnasium_id(name)
         if env_id in gym.registry:
             continue
-        spec = _native.Env(name)
+        spec = _native.Env(name).spec
         gym.register(
             env_id,
             # partials of the classes, not closures: envs must pickle (subprocess vector envs).

@@ -155,7 +155,7 @@ def _checkpoint(path: Path, actor: str | int) -> SelkdPolicy:
     act_dim = layers[-1][0].shape[2] // 2
     hidden = [w.shape[2] for w, _ in layers[:-1]]
     env = cfg["run"]["env"]
-    scale = Env(env, json.dumps(cfg.get("env_options", {}))).gymnasium_action_scale
+    scale = Env(env, json.dumps(cfg.get("env_options", {}))).spec.gymnasium_action_scale
     meta = {"format": "selkd-policy", "format_version": FORMAT_VERSION, "env": env,
             "env_options": cfg.get("env_options", {}), "gymnasium_action_scale": scale,
             "obs_dim": obs_dim, "act_dim": act_dim, "hidden": hidden, "activation": "relu",

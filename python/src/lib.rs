@@ -87,6 +87,35 @@ fn check_action(spec: &EnvSpec, action: &[f32], shape: &str) -> PyResult<()> {
     Ok(())
 }
 
+/// An env's description, read-only from Python.
+#[pyclass(module = "selkd._native", frozen, get_all)]
+#[derive(Clone)]
+struct Spec {
+    /// Registry name.
+    id: &'static str,
+    obs_dim: usize,
+    act_dim: usize,
+    /// The step at which the env truncates an episode.
+    max_episode_steps: usize,
+    /// Gymnasium's own version of the task takes this times our action.
+    gymnasium_action_scale: f32,
+    /// Simulated seconds per step.
+    control_dt: Option<f64>,
+}
+
+impl Spec {
+    fn of(spec: &EnvSpec, control_dt: Option<f64>) -> Self {
+        Self {
+            id: spec.id,
+            obs_dim: spec.obs_dim,
+            act_dim: spec.act_dim,
+            max_episode_steps: spec.max_episode_steps,
+            gymnasium_action_scale: spec.gymnasium_action_scale,
+            control_dt,
+        }
+    }
+}
+
 /// One env. Not thread-safe by itself in Rust terms (`Box<dyn Env>` is only `Send`), so it sits
 /// behind a mutex; Python's GIL is released while the physics steps.
 #[pyclass(module = "selkd._native")]
@@ -123,30 +152,10 @@ impl Env {
         })
     }
 
+    /// What the env is: sizes, time limit, action scale of Gymnasium's counterpart, step length.
     #[getter]
-    fn id(&self) -> &'static str {
-        self.spec.id
-    }
-    #[getter]
-    fn obs_dim(&self) -> usize {
-        self.spec.obs_dim
-    }
-    #[getter]
-    fn act_dim(&self) -> usize {
-        self.spec.act_dim
-    }
-    #[getter]
-    fn max_episode_steps(&self) -> usize {
-        self.spec.max_episode_steps
-    }
-    #[getter]
-    fn gymnasium_action_scale(&self) -> f32 {
-        self.spec.gymnasium_action_scale
-    }
-    /// Simulated seconds per step.
-    #[getter]
-    fn control_dt(&self) -> Option<f64> {
-        self.control_dt
+    fn spec(&self) -> Spec {
+        Spec::of(&self.spec, self.control_dt)
     }
 
     /// Starts an episode: `seed` reseeds the env, `None` continues its generator.
@@ -219,6 +228,7 @@ impl Env {
 struct VecEnv {
     inner: Mutex<VecState>,
     spec: EnvSpec,
+    control_dt: Option<f64>,
     n: usize,
 }
 
@@ -251,6 +261,7 @@ impl VecEnv {
             .map(|_| make(name, options_json))
             .collect::<PyResult<Vec<_>>>()?;
         let spec = envs[0].spec().clone();
+        let control_dt = envs[0].control_dt();
         let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
         let threads = if threads == 0 { cores } else { threads }.min(n);
         let pool = rayon::ThreadPoolBuilder::new()
@@ -265,6 +276,7 @@ impl VecEnv {
                 pool,
             }),
             spec,
+            control_dt,
             n,
         })
     }
@@ -273,17 +285,10 @@ impl VecEnv {
     fn num_envs(&self) -> usize {
         self.n
     }
+    /// What each env is (as `Env.spec`).
     #[getter]
-    fn obs_dim(&self) -> usize {
-        self.spec.obs_dim
-    }
-    #[getter]
-    fn act_dim(&self) -> usize {
-        self.spec.act_dim
-    }
-    #[getter]
-    fn max_episode_steps(&self) -> usize {
-        self.spec.max_episode_steps
+    fn spec(&self) -> Spec {
+        Spec::of(&self.spec, self.control_dt)
     }
     #[getter]
     fn threads(&self) -> usize {
@@ -400,6 +405,7 @@ impl VecEnv {
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SelkdError", m.py().get_type::<SelkdError>())?;
     m.add_function(wrap_pyfunction!(names, m)?)?;
+    m.add_class::<Spec>()?;
     m.add_class::<Env>()?;
     m.add_class::<VecEnv>()?;
     Ok(())
