@@ -192,7 +192,17 @@ fn adam_loop(p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32], c: &Con
 mod tests {
     use super::*;
 
-    /// Adam written out in scalar arithmetic, step by step, as the paper and torch define it.
+    /// Adam in scalar arithmetic as the paper and torch define it (lr 0.1, default betas and ε):
+    /// step `t` of parameter `x` with gradient `g`.
+    fn scalar_adam(x: &mut f64, m: &mut f64, v: &mut f64, g: f64, t: i32) {
+        *m = 0.9 * *m + 0.1 * g;
+        *v = 0.999 * *v + 0.001 * g * g;
+        let mh = *m / (1.0 - 0.9f64.powi(t));
+        let vh = *v / (1.0 - 0.999f64.powi(t));
+        *x -= 0.1 * mh / (vh.sqrt() + 1e-8);
+    }
+
+    /// Adam written out in scalar arithmetic, step by step.
     #[test]
     fn matches_a_scalar_reference_over_several_steps() {
         let p = Tensor::from_slice(&[0.5f32, -1.0, 2.0]).set_requires_grad(true);
@@ -205,11 +215,7 @@ mod tests {
             opt.step(&[&p]);
             for k in 0..3 {
                 let g = 3.0 * x[k] * x[k];
-                m[k] = 0.9 * m[k] + 0.1 * g;
-                v[k] = 0.999 * v[k] + 0.001 * g * g;
-                let mh = m[k] / (1.0 - 0.9f64.powi(t));
-                let vh = v[k] / (1.0 - 0.999f64.powi(t));
-                x[k] -= 0.1 * mh / (vh.sqrt() + 1e-8);
+                scalar_adam(&mut x[k], &mut m[k], &mut v[k], g, t);
             }
         }
         let got = Vec::<f32>::try_from(&p.detach()).unwrap();
@@ -258,11 +264,7 @@ mod tests {
                 let t = steps[j];
                 for k in 2 * j..2 * j + 2 {
                     let g = 3.0 * x[k] * x[k];
-                    m[k] = 0.9 * m[k] + 0.1 * g;
-                    v[k] = 0.999 * v[k] + 0.001 * g * g;
-                    let mh = m[k] / (1.0 - 0.9f64.powi(t));
-                    let vh = v[k] / (1.0 - 0.999f64.powi(t));
-                    x[k] -= 0.1 * mh / (vh.sqrt() + 1e-8);
+                    scalar_adam(&mut x[k], &mut m[k], &mut v[k], g, t);
                 }
             }
             assert_eq!(p.grad().abs().sum(tch::Kind::Float).double_value(&[]), 0.0);
