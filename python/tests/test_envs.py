@@ -104,6 +104,16 @@ def test_bad_options_are_one_line_errors(make, message):
     assert isinstance(e.value, ValueError)
 
 
+def test_an_unknown_id_is_a_one_line_error():
+    # Gymnasium's registry answers for a misspelt id, naming the near miss.
+    with pytest.raises(gym.error.NameNotFound) as e:
+        gym.make("selkd/Hoper-v0")
+    assert "Hopper" in str(e.value) and "\n" not in str(e.value), str(e.value)
+    with pytest.raises(selkd.SelkdError) as e:
+        selkd.envs.registry_name("selkd/Hoper-v0")
+    assert "selkd/Hopper-v0" in str(e.value) and "\n" not in str(e.value)
+
+
 def test_bad_actions_are_one_line_errors():
     env = gym.make("selkd/Hopper-v0").unwrapped
     env.reset(seed=0)
