@@ -45,10 +45,6 @@ impl Ensemble {
         }
     }
 
-    pub fn members(&self) -> i64 {
-        self.layers[0].weight.size()[0]
-    }
-
     /// `x` is `[E, B, in]`; returns `[E, B, out]`.
     pub fn forward(&self, x: &Tensor) -> Tensor {
         let last = self.layers.len() - 1;
