@@ -142,16 +142,6 @@ impl Ensemble {
             }
         });
     }
-
-    /// Overwrites every parameter with `other`'s values (same shapes).
-    pub fn copy_from(&mut self, other: &Ensemble) {
-        tch::no_grad(|| {
-            for (t, o) in self.params().into_iter().zip(other.params()) {
-                let mut t = t.shallow_clone();
-                t.copy_(o);
-            }
-        });
-    }
 }
 
 fn param(values: &[f32], shape: &[usize], device: Device) -> Tensor {
