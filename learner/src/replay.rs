@@ -217,6 +217,32 @@ mod tests {
         }
     }
 
+    /// Rows wait in a staging area until a sample, an export or 4096 of them flush them; the
+    /// counts must be right before that flush too (the learner reports them every round).
+    #[test]
+    fn staged_rows_count_before_they_are_flushed() {
+        let mut rb = ReplayBuffer::new(5, 1, 1, Device::Cpu);
+        assert!(rb.is_empty() && rb.len() == 0 && rb.capacity() == 5);
+        for i in 0..3 {
+            rb.push(&[i as f32], &[0.0], 0.0, &[0.0], false);
+        }
+        assert_eq!((rb.len(), rb.is_empty(), rb.inserted), (3, false, 3));
+        for i in 3..9 {
+            rb.push(&[i as f32], &[0.0], 0.0, &[0.0], false);
+        }
+        assert_eq!((rb.len(), rb.inserted), (5, 9), "len stops at the capacity");
+        rb.flush();
+        assert_eq!(rb.len(), 5);
+        for i in 9..11 {
+            rb.push(&[i as f32], &[0.0], 0.0, &[0.0], false);
+        }
+        assert_eq!((rb.len(), rb.inserted), (5, 11));
+        assert_eq!(
+            Vec::<f32>::try_from(rb.export().select(1, 0)).unwrap(),
+            vec![6.0, 7.0, 8.0, 9.0, 10.0]
+        );
+    }
+
     #[test]
     fn export_then_import_restores_order() {
         let mut rb = ReplayBuffer::new(4, 1, 1, Device::Cpu);
