@@ -113,17 +113,26 @@ mod tests {
     #[test]
     fn version_counts_score_changes_and_the_last_evaluated_epoch_is_kept() {
         let mut r = Ranking::new(2, 3);
-        assert_eq!((r.version, r.last_eval_epoch(0), r.last_eval_epoch(1)), (0, 0, 0));
+        assert_eq!(
+            (r.version, r.last_eval_epoch(0), r.last_eval_epoch(1)),
+            (0, 0, 0)
+        );
         r.training_episode(0, -5.0);
         assert_eq!(r.version, 1);
         r.training_episode(0, -6.0);
         assert_eq!(r.version, 2);
         assert!(r.evaluation(0, 3, 1.0));
-        assert_eq!((r.version, r.last_eval_epoch(0), r.last_eval_epoch(1)), (3, 3, 0));
+        assert_eq!(
+            (r.version, r.last_eval_epoch(0), r.last_eval_epoch(1)),
+            (3, 3, 0)
+        );
         r.training_episode(0, -7.0); // evaluated: a training return no longer scores it
         assert_eq!(r.version, 3);
         assert!(!r.evaluation(0, 2, 9.0), "an older epoch is ignored");
-        assert!(!r.evaluation(0, 4, f64::NAN), "a non-finite return is ignored");
+        assert!(
+            !r.evaluation(0, 4, f64::NAN),
+            "a non-finite return is ignored"
+        );
         assert_eq!((r.version, r.last_eval_epoch(0)), (3, 3));
         assert!(r.evaluation(0, 7, 2.0));
         assert_eq!((r.version, r.last_eval_epoch(0)), (4, 7));
