@@ -186,14 +186,14 @@ impl Selkd {
             // DNS: only k critics learn from this batch, drawn by a k-DPP over how alike the
             // critics' values on it are; the others keep their weights and Adam state.
             Some(k) => {
-                let values: Vec<Vec<f64>> = (0..n as i64)
-                    .map(|j| {
-                        Vec::<f64>::try_from(
-                            &q.get(j).detach().to(Device::Cpu).to_kind(Kind::Double),
-                        )
-                        .expect("f64 values")
-                    })
-                    .collect();
+                let flat = Vec::<f64>::try_from(
+                    &q.detach()
+                        .reshape([-1])
+                        .to(Device::Cpu)
+                        .to_kind(Kind::Double),
+                )
+                .expect("f64 values");
+                let values: Vec<Vec<f64>> = flat.chunks(b).map(<[f64]>::to_vec).collect();
                 let trained = dpp::sample_k_dpp(&dpp::linear_cka(&values), k, &mut self.rng);
                 let index =
                     Tensor::from_slice(&trained.iter().map(|&j| j as i64).collect::<Vec<_>>())

@@ -87,27 +87,29 @@ class SelkdEnv(gym.Env):
                 f"render_mode={render_mode!r}: selkd envs draw only 'rgb_array' (or pass None)"
             )
         self._env = _native.Env(name, _options_json(name, options), render_mode is not None)
+        # Read once: each `.spec` read builds a new object, and `step` needs the action size.
+        self._env_spec = self._env.spec
         self.name = name
         self.options = dict(options)
         self.render_mode = render_mode
         self.width, self.height = int(width), int(height)
-        dt = self._env.spec.control_dt
+        dt = self._env_spec.control_dt
         self.metadata = {**self.metadata, "render_fps": round(1.0 / dt) if dt else 30}
         self.observation_space = gym.spaces.Box(
-            -np.inf, np.inf, (self._env.spec.obs_dim,), np.float32
+            -np.inf, np.inf, (self._env_spec.obs_dim,), np.float32
         )
-        self.action_space = gym.spaces.Box(-1.0, 1.0, (self._env.spec.act_dim,), np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (self._env_spec.act_dim,), np.float32)
         self._seeded = False
 
     @property
     def max_episode_steps(self) -> int:
         """The env's own time limit (it truncates there)."""
-        return self._env.spec.max_episode_steps
+        return self._env_spec.max_episode_steps
 
     @property
     def gymnasium_action_scale(self) -> float:
         """Gymnasium's own version of the task takes this times our action."""
-        return self._env.spec.gymnasium_action_scale
+        return self._env_spec.gymnasium_action_scale
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
@@ -126,7 +128,7 @@ class SelkdEnv(gym.Env):
 
     def step(self, action):
         a = np.asarray(action, dtype=np.float32)
-        n = self._env.spec.act_dim
+        n = self._env_spec.act_dim
         if a.shape != (n,):
             if a.size != n:
                 raise _native.SelkdError(
@@ -161,17 +163,18 @@ class SelkdVectorEnv(VectorEnv):
         **options: Any,
     ):
         self._envs = _native.VecEnv(name, int(num_envs), _options_json(name, options), int(threads))
-        if max_episode_steps is not None and max_episode_steps != self._envs.spec.max_episode_steps:
+        self._env_spec = self._envs.spec
+        if max_episode_steps is not None and max_episode_steps != self._env_spec.max_episode_steps:
             raise _native.SelkdError(
                 f"max_episode_steps={max_episode_steps}: selkd/{name}'s time limit is "
-                f"{self._envs.spec.max_episode_steps} and cannot be changed in the vector form"
+                f"{self._env_spec.max_episode_steps} and cannot be changed in the vector form"
             )
         self.name = name
         self.num_envs = self._envs.num_envs
         self.single_observation_space = gym.spaces.Box(
-            -np.inf, np.inf, (self._envs.spec.obs_dim,), np.float32
+            -np.inf, np.inf, (self._env_spec.obs_dim,), np.float32
         )
-        self.single_action_space = gym.spaces.Box(-1.0, 1.0, (self._envs.spec.act_dim,), np.float32)
+        self.single_action_space = gym.spaces.Box(-1.0, 1.0, (self._env_spec.act_dim,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._seeded = False

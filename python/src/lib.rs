@@ -71,11 +71,14 @@ fn make(name: &str, options_json: &str) -> PyResult<Box<dyn selkd_envs::Env>> {
 }
 
 /// Checks one action: its length and that it holds no NaN (the env clips everything else).
-fn check_action(spec: &EnvSpec, action: &[f32], shape: &str) -> PyResult<()> {
+/// `shape` describes the action for the error only, so a valid step allocates nothing.
+fn check_action(spec: &EnvSpec, action: &[f32], shape: impl FnOnce() -> String) -> PyResult<()> {
     if action.len() != spec.act_dim {
         return Err(error(format!(
-            "{}: the action has shape {shape}, expected ({},)",
-            spec.id, spec.act_dim
+            "{}: the action has shape {}, expected ({},)",
+            spec.id,
+            shape(),
+            spec.act_dim
         )));
     }
     if let Some(i) = action.iter().position(|a| a.is_nan()) {
@@ -179,7 +182,7 @@ impl Env {
         action: PyReadonlyArray1<'py, f32>,
     ) -> PyResult<(Bound<'py, PyArray1<f32>>, f64, bool, bool, Option<bool>)> {
         let a = action.as_slice().map_err(error)?;
-        check_action(&self.spec, a, &format!("{:?}", action.shape()))?;
+        check_action(&self.spec, a, || format!("{:?}", action.shape()))?;
         let s = py.detach(|| {
             let mut s = self.inner.lock().unwrap_or_else(|p| p.into_inner());
             s.env.step(a)
@@ -352,7 +355,7 @@ impl VecEnv {
         }
         let a = actions.as_slice().map_err(error)?;
         for row in a.chunks_exact(self.spec.act_dim) {
-            check_action(&self.spec, row, &format!("({},)", row.len()))?;
+            check_action(&self.spec, row, || format!("({},)", row.len()))?;
         }
         let outcomes = py.detach(|| {
             use rayon::prelude::*;

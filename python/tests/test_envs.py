@@ -170,7 +170,7 @@ def test_the_vector_env_steps_like_single_envs_with_next_step_autoreset():
 def test_the_vector_env_reports_success_with_a_mask():
     vec = gym.make_vec("selkd/FpcAssembly-v0", num_envs=2)
     vec.reset(seed=0)
-    for _ in range(vec.unwrapped._envs.spec.max_episode_steps + 1):
+    for _ in range(vec.unwrapped._env_spec.max_episode_steps + 1):
         _, _, terminated, truncated, info = vec.step(vec.action_space.sample())
         if (terminated | truncated).any():
             break
