@@ -16,7 +16,7 @@
 use crate::eval::locate;
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
-use selkd_learner::checkpoint::{load_actor, TrainingState};
+use selkd_learner::checkpoint::load_actor;
 use std::path::{Path, PathBuf};
 use tch::Tensor;
 
@@ -51,12 +51,11 @@ fn run_inner(args: ExportArgs) -> Result<()> {
         ),
     };
     let (checkpoint, cfg) = locate(&args.path)?;
-    let state: TrainingState = serde_json::from_str(
-        &std::fs::read_to_string(checkpoint.join("state.json"))
-            .with_context(|| format!("reading {}", checkpoint.join("state.json").display()))?,
-    )
-    .with_context(|| format!("reading {}", checkpoint.join("state.json").display()))?;
     let loaded = load_actor(&checkpoint, actor)?;
+    let state = loaded
+        .state
+        .as_ref()
+        .expect("locate only returns directories with a state.json");
     let layout = loaded.actor.layout().clone();
     let spec = selkd_envs::make_with(&cfg.run.env, &cfg.env_options)
         .with_context(|| format!("making the run's env `{}`", cfg.run.env))?
@@ -126,17 +125,22 @@ fn run_inner(args: ExportArgs) -> Result<()> {
     Ok(())
 }
 
-/// The interpreter with the `selkd` package: `SELKD_PYTHON`, else the venv of deploy/python.sh.
+/// The interpreter with the `selkd` package: `SELKD_PYTHON`, else the venv deploy/python.sh
+/// makes (`SELKD_PYTHON_VENV`, else `python-venv` in the cache it uses).
 fn python() -> Result<PathBuf> {
     if let Some(p) = std::env::var_os("SELKD_PYTHON") {
         return Ok(PathBuf::from(p));
     }
-    let cache = std::env::var_os("SELKD_CACHE")
-        .map(PathBuf::from)
-        .or_else(|| std::env::var_os("XDG_CACHE_HOME").map(|c| Path::new(&c).join("selkd")))
-        .or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/selkd")))
-        .ok_or_else(|| anyhow!("--onnx: set SELKD_PYTHON to a Python with the selkd package"))?;
-    let p = cache.join("python-venv/bin/python");
+    let venv = match std::env::var_os("SELKD_PYTHON_VENV") {
+        Some(v) => PathBuf::from(v),
+        None => std::env::var_os("SELKD_CACHE")
+            .map(PathBuf::from)
+            .or_else(|| std::env::var_os("XDG_CACHE_HOME").map(|c| Path::new(&c).join("selkd")))
+            .or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/selkd")))
+            .ok_or_else(|| anyhow!("--onnx: set SELKD_PYTHON to a Python with the selkd package"))?
+            .join("python-venv"),
+    };
+    let p = venv.join("bin/python");
     if !p.exists() {
         bail!(
             "--onnx needs the selkd Python package: run `bash deploy/python.sh` (or set SELKD_PYTHON to a Python that has it)"

@@ -162,7 +162,11 @@ fn run_inner(args: RenderArgs) -> Result<()> {
             None
         }
     };
-    let config = run_config.or_else(|| loaded.as_ref().and_then(|l| l.config.clone()));
+    let config = run_config.or_else(|| {
+        loaded
+            .as_ref()
+            .and_then(|l| l.state.as_ref().map(|s| s.config.clone()))
+    });
     let env_name = match (&args.env, &config) {
         (Some(e), _) => e.clone(),
         (None, Some(c)) => c.run.env.clone(),

@@ -304,8 +304,9 @@ pub struct LoadedActor {
     pub index: usize,
     /// Actors in the checkpoint.
     pub actors: usize,
-    /// The run's config, when `path` was a checkpoint directory (its `state.json`).
-    pub config: Option<Config>,
+    /// The checkpoint's `state.json` (its config, ranking, counters), when `path` was a
+    /// checkpoint directory.
+    pub state: Option<TrainingState>,
 }
 
 /// Loads actor `actor` (default: the checkpoint's best by its ranking, or 0 for a bare
@@ -386,7 +387,7 @@ pub fn load_actor(path: &Path, actor: Option<usize>) -> Result<LoadedActor> {
         actor,
         index,
         actors: k,
-        config: state.map(|s| s.config),
+        state,
     })
 }
 

@@ -12,13 +12,16 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// The venv's interpreter: `SELKD_PYTHON`, else the one deploy/python.sh makes.
+/// The venv's interpreter, found as `selkd export --onnx` finds it: `SELKD_PYTHON`, else the
+/// venv deploy/python.sh makes (`SELKD_PYTHON_VENV`, else `python-venv` in the cache).
 fn python() -> PathBuf {
     let p = std::env::var_os("SELKD_PYTHON")
         .map(PathBuf::from)
         .unwrap_or_else(|| {
-            let home = std::env::var_os("HOME").expect("HOME");
-            Path::new(&home).join(".cache/selkd/python-venv/bin/python")
+            std::env::var_os("SELKD_PYTHON_VENV")
+                .map(PathBuf::from)
+                .unwrap_or_else(|| cache_dir().join("python-venv"))
+                .join("bin/python")
         });
     assert!(
         p.exists(),

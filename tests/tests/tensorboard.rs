@@ -9,11 +9,7 @@ use std::path::{Path, PathBuf};
 
 /// Where `deploy/test-deps.sh` installs TensorBoard (its cache path, computed the same way).
 fn tensorboard_dir() -> PathBuf {
-    let cache = std::env::var_os("SELKD_CACHE")
-        .map(PathBuf::from)
-        .or_else(|| std::env::var_os("XDG_CACHE_HOME").map(|c| PathBuf::from(c).join("selkd")))
-        .unwrap_or_else(|| PathBuf::from(std::env::var("HOME").unwrap()).join(".cache/selkd"));
-    let dir = cache.join("tensorboard-2.21.0");
+    let dir = cache_dir().join("tensorboard-2.21.0");
     assert!(
         dir.join(".complete").exists(),
         "TensorBoard is not installed at {}: run `bash deploy/test-deps.sh` (deploy/test.sh does)",

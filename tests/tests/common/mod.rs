@@ -25,6 +25,15 @@ pub fn bin(name: &str) -> PathBuf {
     p
 }
 
+/// The per-user cache the set-up scripts install into (libtorch, TensorBoard, the Python venv),
+/// computed as they compute it: `SELKD_CACHE`, else `XDG_CACHE_HOME/selkd`, else `~/.cache/selkd`.
+pub fn cache_dir() -> PathBuf {
+    std::env::var_os("SELKD_CACHE")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("XDG_CACHE_HOME").map(|c| PathBuf::from(c).join("selkd")))
+        .unwrap_or_else(|| PathBuf::from(std::env::var("HOME").unwrap()).join(".cache/selkd"))
+}
+
 pub fn temp_dir(tag: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("selkd-test-{tag}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
