@@ -48,6 +48,8 @@ pub fn linear_cka(q: &[Vec<f64>]) -> Vec<Vec<f64>> {
 
 /// Eigen-decomposition of a symmetric matrix by cyclic Jacobi rotations: (eigenvalues,
 /// eigenvectors as columns `v[row][col]`).
+// The rotations index rows and columns as the textbook writes them.
+#[allow(clippy::needless_range_loop)]
 pub fn symmetric_eigen(a: &[Vec<f64>]) -> (Vec<f64>, Vec<Vec<f64>>) {
     let n = a.len();
     let mut a: Vec<Vec<f64>> = a.to_vec();
@@ -210,6 +212,7 @@ mod tests {
     use rand::SeedableRng;
 
     /// Determinant by Gaussian elimination with partial pivoting (plain, for the reference).
+    #[allow(clippy::needless_range_loop)]
     fn det(m: &[Vec<f64>]) -> f64 {
         let mut a = m.to_vec();
         let n = a.len();

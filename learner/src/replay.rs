@@ -220,6 +220,7 @@ mod tests {
     /// Rows wait in a staging area until a sample, an export or 4096 of them flush them; the
     /// counts must be right before that flush too (the learner reports them every round).
     #[test]
+    #[allow(clippy::len_zero)] // `len` and `is_empty` are both under test
     fn staged_rows_count_before_they_are_flushed() {
         let mut rb = ReplayBuffer::new(5, 1, 1, Device::Cpu);
         assert!(rb.is_empty() && rb.len() == 0 && rb.capacity() == 5);

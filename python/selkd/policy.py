@@ -133,7 +133,6 @@ def _latest_checkpoint(run: Path) -> Path:
 
 
 def _checkpoint(path: Path, actor: str | int) -> SelkdPolicy:
-    from .envs import registry_name  # noqa: F401  (the registry is imported with the package)
     from ._native import Env
 
     state = json.loads((path / "state.json").read_text())
