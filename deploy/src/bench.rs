@@ -3,7 +3,7 @@
 use anyhow::Result;
 use clap::{Args, Subcommand};
 use rand::{Rng, SeedableRng};
-use selkd_learner::config::{AlgoConfig, Precision, Sharing};
+use selkd_learner::config::{AlgoConfig, Precision, Regulariser, Sharing};
 use std::time::Instant;
 
 #[derive(Subcommand, Debug)]
@@ -58,6 +58,10 @@ pub struct LearnerBench {
     /// libtorch threads (0 = its default).
     #[arg(long, default_value_t = 0)]
     threads: usize,
+    /// AVTD: this many variants side by side (none, layer-norm, weight-decay, then again), each
+    /// with K = 1 and N critics; 0: not AVTD.
+    #[arg(long, default_value_t = 0)]
+    variants: usize,
 }
 
 pub fn run(cmd: BenchCommand) -> Result<()> {
@@ -93,16 +97,32 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
                 batch_size: b.batch,
                 hidden: vec![b.hidden, b.hidden],
                 sharing,
+                variants: [
+                    Regulariser::None,
+                    Regulariser::LayerNorm,
+                    Regulariser::WeightDecay,
+                ]
+                .into_iter()
+                .cycle()
+                .take(b.variants)
+                .collect(),
                 ..AlgoConfig::default()
             };
+            if b.variants > 0 && b.k != 1 {
+                anyhow::bail!("--variants (AVTD) needs --k 1");
+            }
             let device = selkd_learner::service::parse_device(&b.device)?;
             selkd_learner::service::check_matmul(cfg.critic_matmul, device)?;
             let r = selkd_learner::bench::learner(&cfg, b.obs, b.act, device, b.rounds);
-            let gflops =
-                selkd_learner::bench::flops_per_round(&cfg, b.obs, b.act) * r.rounds_per_sec / 1e9;
+            // AVTD's round is V REDQ rounds' matmuls, stacked.
+            let gflops = selkd_learner::bench::flops_per_round(&cfg, b.obs, b.act)
+                * b.variants.max(1) as f64
+                * r.rounds_per_sec
+                / 1e9;
             println!(
-                "K={} N={} M={} G={} batch={} obs={} act={} hidden={} {} {} on {} ({}, {} threads): {:.1} rounds/s, {gflops:.1} GFLOP/s in matmuls",
-                b.k, b.n, b.m, b.g, b.batch, b.obs, b.act, b.hidden, b.sharing, b.critic_matmul, b.device,
+                "K={} N={} M={} G={}{} batch={} obs={} act={} hidden={} {} {} on {} ({}, {} threads): {:.1} rounds/s, {gflops:.1} GFLOP/s in matmuls",
+                b.k, b.n, b.m, b.g,
+                if b.variants > 0 { format!(" V={}", b.variants) } else { String::new() }, b.batch, b.obs, b.act, b.hidden, b.sharing, b.critic_matmul, b.device,
                 selkd_learner::service::cpu_model(), tch::get_num_threads(), r.rounds_per_sec
             );
             println!("{:.2} updates/s", r.critic_updates_per_sec);

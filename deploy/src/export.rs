@@ -84,6 +84,12 @@ fn run_inner(args: ExportArgs) -> Result<()> {
         .with_context(|| format!("writing {}", weights.display()))?;
 
     let scores = state.ranking.scores();
+    // The ranking scores the acting actors; AVTD's only acting actor is the selected variant.
+    let score = if cfg.algo.variants.is_empty() {
+        scores.get(loaded.index).copied()
+    } else {
+        (loaded.index == state.selected_variant).then(|| scores[0])
+    };
     let metadata = serde_json::json!({
         "format": "selkd-policy",
         "format_version": FORMAT_VERSION,
@@ -100,8 +106,8 @@ fn run_inner(args: ExportArgs) -> Result<()> {
         "deterministic_action": "tanh(mu); the network's output is [mu, log_std], act_dim each",
         "actor": loaded.index,
         "actors": loaded.actors,
-        "best_actor": state.ranking.best(),
-        "score": scores[loaded.index],
+        "best_actor": state.best_actor(),
+        "score": score,
         "scores": scores,
         "env_steps": state.received.iter().sum::<u64>(),
         "checkpoint": std::fs::canonicalize(&checkpoint).unwrap_or(checkpoint.clone()),

@@ -1,6 +1,7 @@
 //! Checkpoints: a directory holding `model.safetensors` (actors, critics, target critics, log α,
 //! and the Adam moments, all named so other tools can load them), `state.json` (step counters,
-//! the learner's RNG state, the ranking, the config) and optionally `replay.safetensors`.
+//! the learner's RNG state, the ranking, the config) and optionally `replay.safetensors` (the
+//! replay buffer's rows, and AVTD's held-out validation rows).
 //!
 //! Actor tensors are stacked `[K, in, out]` / `[K, 1, out]`; actor i's layer l is
 //! `actors.{l}.weight[i]`, its output splits into μ (first half) and log σ (second half).
@@ -61,6 +62,9 @@ pub struct TrainingState {
     pub epoch_ends: Vec<(u64, u64)>,
     pub ranking: Ranking,
     pub wall_seconds: f64,
+    /// AVTD: the variant that acts (actor `selected_variant` of the stacked actors).
+    #[serde(default)]
+    pub selected_variant: usize,
 }
 
 /// [`RoundStats`] in JSON, which has no NaN (`None` stands for it).
@@ -106,6 +110,16 @@ impl From<&LastRound> for RoundStats {
 }
 
 impl TrainingState {
+    /// The actor that represents the run: the best by the ranking, or for AVTD the selected
+    /// variant's (its actors are the variants, of which one acts).
+    pub fn best_actor(&self) -> usize {
+        if self.config.algo.variants.is_empty() {
+            self.ranking.best()
+        } else {
+            self.selected_variant
+        }
+    }
+
     /// Each actor's rollout record; for a checkpoint without one, fresh episodes numbered far
     /// from any the run had (so their seeds are new) after the transitions received.
     pub fn rollouts(&self) -> Vec<Rollout> {
@@ -148,7 +162,7 @@ fn tensors(s: &Selkd) -> Vec<(String, &Tensor)> {
 pub fn save(
     dir: &Path,
     selkd: &Selkd,
-    replay: Option<&mut ReplayBuffer>,
+    replay: Option<(&mut ReplayBuffer, Option<&mut ReplayBuffer>)>,
     state: &TrainingState,
 ) -> Result<()> {
     let tmp = dir.with_extension("partial");
@@ -169,7 +183,7 @@ pub fn save(
 fn write_into(
     tmp: &Path,
     selkd: &Selkd,
-    replay: Option<&mut ReplayBuffer>,
+    replay: Option<(&mut ReplayBuffer, Option<&mut ReplayBuffer>)>,
     state: &TrainingState,
 ) -> Result<()> {
     std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
@@ -179,9 +193,13 @@ fn write_into(
         .collect();
     Tensor::write_safetensors(&named, tmp.join("model.safetensors"))
         .context("writing model.safetensors")?;
-    if let Some(replay) = replay {
-        let rows = replay.export().to_device(tch::Device::Cpu).contiguous();
-        Tensor::write_safetensors(&[("rows", rows)], tmp.join("replay.safetensors"))
+    if let Some((replay, validation)) = replay {
+        let cpu = |b: &mut ReplayBuffer| b.export().to_device(tch::Device::Cpu).contiguous();
+        let mut entries = vec![("rows", cpu(replay))];
+        if let Some(v) = validation {
+            entries.push(("validation", cpu(v)));
+        }
+        Tensor::write_safetensors(&entries, tmp.join("replay.safetensors"))
             .context("writing replay.safetensors")?;
     }
     std::fs::write(tmp.join("state.json"), serde_json::to_string_pretty(state)?)
@@ -243,8 +261,14 @@ fn fsync(path: &Path) -> Result<()> {
         .with_context(|| format!("syncing {}", path.display()))
 }
 
-/// Loads a checkpoint into an already built `selkd` (same config) and, when it holds one, the replay buffer.
-pub fn load(dir: &Path, selkd: &mut Selkd, replay: &mut ReplayBuffer) -> Result<TrainingState> {
+/// Loads a checkpoint into an already built `selkd` (same config) and, when it holds them, the
+/// replay buffer and AVTD's validation rows.
+pub fn load(
+    dir: &Path,
+    selkd: &mut Selkd,
+    replay: &mut ReplayBuffer,
+    validation: Option<&mut ReplayBuffer>,
+) -> Result<TrainingState> {
     let state: TrainingState = serde_json::from_str(
         &std::fs::read_to_string(dir.join("state.json")).with_context(|| {
             format!(
@@ -285,10 +309,20 @@ pub fn load(dir: &Path, selkd: &mut Selkd, replay: &mut ReplayBuffer) -> Result<
         opt.step = steps;
     }
     selkd.critic_opt.member_steps = state.critic_member_steps.clone();
+    selkd.selected = state.selected_variant;
     let replay_file = dir.join("replay.safetensors");
     if replay_file.exists() {
-        let rows = Tensor::read_safetensors(&replay_file).context("reading replay.safetensors")?;
-        replay.import(&rows[0].1);
+        let stored: HashMap<String, Tensor> = Tensor::read_safetensors(&replay_file)
+            .context("reading replay.safetensors")?
+            .into_iter()
+            .collect();
+        let rows = stored
+            .get("rows")
+            .context("replay.safetensors lacks its `rows`")?;
+        replay.import(rows);
+        if let (Some(v), Some(rows)) = (validation, stored.get("validation")) {
+            v.import(rows);
+        }
     }
     Ok(state)
 }
@@ -309,7 +343,7 @@ pub struct LoadedActor {
     pub state: Option<TrainingState>,
 }
 
-/// Loads actor `actor` (default: the checkpoint's best by its ranking, or 0 for a bare
+/// Loads actor `actor` (default: the checkpoint's [`TrainingState::best_actor`], or 0 for a bare
 /// `model.safetensors`) from a checkpoint directory or a `model.safetensors` file. The network's
 /// shape is read from the tensors themselves. Act with [`selkd_policy::Actor::mean_action`]
 /// (`tanh(μ)`, as in evaluation).
@@ -356,7 +390,7 @@ pub fn load_actor(path: &Path, actor: Option<usize>) -> Result<LoadedActor> {
     let k = layers[0].0.size()[0] as usize;
     let index = match actor {
         Some(i) => i,
-        None => state.as_ref().map_or(0, |s| s.ranking.best()),
+        None => state.as_ref().map_or(0, TrainingState::best_actor),
     };
     if index >= k {
         bail!(

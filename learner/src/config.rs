@@ -127,6 +127,26 @@ pub struct AlgoConfig {
     /// critics' similarity on the batch (`dpp`); the others keep their weights and optimiser
     /// state. Absent: all N.
     pub trained_critics: Option<usize>,
+    /// AVTD: regularisation variants of the agent trained side by side on the shared data, each
+    /// a whole agent (its actor, its N critics, its α); the variant whose critics have the lowest
+    /// TD error on held-out validation transitions acts and is evaluated. Empty: no AVTD.
+    pub variants: Vec<Regulariser>,
+    /// AVTD: every this-many-th transition received is held out for validation (never trained on).
+    pub validation_every: u64,
+    /// AVTD's `weight-decay` variant: c in the ½ c ‖W‖² added to each critic's loss (weights, not biases).
+    pub weight_decay: f64,
+}
+
+/// How an AVTD variant regularises its critics (the actors are never regularised).
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum Regulariser {
+    /// No regularisation: REDQ as configured.
+    None,
+    /// Layer normalisation (no learned scale or shift) after every hidden linear layer, before the ReLU.
+    LayerNorm,
+    /// L2 on the critics' weight matrices, `algo.weight_decay`.
+    WeightDecay,
 }
 
 /// The actor objective's reduction over critics.
@@ -229,6 +249,9 @@ impl Default for AlgoConfig {
             target_entropy: None,
             critic_matmul: Precision::Fp32,
             trained_critics: None,
+            variants: Vec::new(),
+            validation_every: 10,
+            weight_decay: 1e-4,
         }
     }
 }
@@ -370,6 +393,32 @@ impl Config {
                 return bad(
                     "algo.trained_critics (DNS) compares the critics on one batch: it needs sharing = \"per-update\" and no paired_critics".to_string(),
                 );
+            }
+        }
+        if !a.variants.is_empty() {
+            if a.variants.len() > 8 {
+                return bad(format!(
+                    "algo.variants lists {} variants; AVTD here trains at most 8",
+                    a.variants.len()
+                ));
+            }
+            if a.actors != 1
+                || a.paired_critics
+                || a.trained_critics.is_some()
+                || a.without_rl
+                || a.kd_actors.is_some()
+                || a.sharing != Sharing::PerUpdate
+            {
+                return bad("algo.variants (AVTD) trains one agent per variant and lets the best act: it needs algo.actors = 1, sharing = \"per-update\", and no paired_critics, trained_critics, without_rl or kd_actors".into());
+            }
+            if a.validation_every < 2 {
+                return bad(format!("algo.validation_every = {} must be at least 2 (every n-th transition is held out for validation; 10 holds out 10%)", a.validation_every));
+            }
+            if !(a.weight_decay >= 0.0 && a.weight_decay.is_finite()) {
+                return bad(format!(
+                    "algo.weight_decay = {} must be ≥ 0",
+                    a.weight_decay
+                ));
             }
         }
         if a.target == Formation::MaxAqe && a.aqe_drop >= a.subset {
@@ -550,6 +599,21 @@ mod tests {
             &["algo.trained_critics=3", "algo.sharing=\"per-critic\""],
         );
         assert!(e.contains("per-update"), "{e}");
+        // AVTD: one acting actor, and nothing that changes which critics an actor owns.
+        let avtd = "algo.variants=[\"none\", \"layer-norm\"]";
+        for (extra, says) in [
+            ("algo.actors=2", "algo.actors = 1"),
+            ("algo.trained_critics=2", "trained_critics"),
+            ("algo.validation_every=1", "at least 2"),
+            ("algo.weight_decay=-1", "algo.weight_decay"),
+        ] {
+            let e = err("", &[avtd, "algo.actors=1", extra]);
+            assert!(e.contains(says) && !e.contains('\n'), "{extra}: {e}");
+        }
+        let e = err("", &["algo.actors=1", "algo.variants=[\"dropout\"]"]);
+        assert!(e.contains("dropout") && e.contains("layer-norm"), "{e}");
+        Config::from_toml_with_overrides("", &[avtd.to_string(), "algo.actors=1".to_string()])
+            .unwrap();
         let e = err("", &["env_options.gravity=3"]);
         assert!(
             e.contains("env_options for `pendulum`") && e.contains("gravity"),

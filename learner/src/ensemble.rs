@@ -5,6 +5,9 @@ use rand::Rng;
 use rand_pcg::Pcg64;
 use tch::{Device, Kind, Tensor};
 
+/// ε of the layer normalisation, PyTorch's `nn.LayerNorm` default.
+pub const LAYER_NORM_EPS: f64 = 1e-5;
+
 /// One stacked linear layer.
 pub struct StackedLinear {
     pub weight: Tensor,
@@ -17,6 +20,9 @@ pub struct Ensemble {
     /// Element type the matmuls run in: `Float`, or `BFloat16` (bf16 inputs, fp32 accumulation
     /// and fp32 master weights) where the CPU or GPU has fast bf16 units.
     pub matmul: Kind,
+    /// AVTD's layer-norm variants: `[E, 1, 1]` booleans, true for the members whose hidden layers
+    /// are normalised (before each ReLU, no learned scale or shift); `None`: no member is.
+    pub layer_norm: Option<Tensor>,
 }
 
 impl Ensemble {
@@ -42,7 +48,19 @@ impl Ensemble {
         Self {
             layers,
             matmul: Kind::Float,
+            layer_norm: None,
         }
+    }
+
+    /// Normalises the hidden layers of the members flagged in `members` (see [`Self::layer_norm`]).
+    pub fn with_layer_norm(mut self, members: &[bool]) -> Self {
+        let device = self.layers[0].weight.device();
+        self.layer_norm = members.contains(&true).then(|| {
+            Tensor::from_slice(members)
+                .view([-1, 1, 1])
+                .to_device(device)
+        });
+        self
     }
 
     /// `x` is `[E, B, in]`; returns `[E, B, out]`.
@@ -59,6 +77,15 @@ impl Ensemble {
                     + &layer.bias
             };
             if l < last {
+                if let Some(flags) = &self.layer_norm {
+                    // Every member is normalised, and the flags pick the normalised or the raw
+                    // values: one stacked operation, exact for both kinds of member.
+                    let mean = h.mean_dim(-1, true, Kind::Float);
+                    let centred = &h - &mean;
+                    let var = centred.square().mean_dim(-1, true, Kind::Float);
+                    let normed = &centred * (var + LAYER_NORM_EPS).rsqrt();
+                    h = normed.where_self(flags, &h);
+                }
                 h = h.relu();
             }
         }
@@ -96,6 +123,8 @@ impl Ensemble {
                 })
                 .collect(),
             matmul: self.matmul,
+            // The flags follow the members (`f` selects, narrows or copies along dimension 0).
+            layer_norm: self.layer_norm.as_ref().map(&f),
         }
     }
 
@@ -193,6 +222,64 @@ mod tests {
         assert!(rel < 2e-2, "bf16 forward strays {rel} from fp32");
         fast.sum(Kind::Float).backward();
         assert_eq!(ens.layers[0].weight.grad().kind(), Kind::Float);
+    }
+
+    /// Layer norm against a plain f64 computation: normalised (mean 0, variance 1 with ε, no
+    /// scale or shift) before each hidden ReLU for the flagged member only; a selection of
+    /// members keeps each member's flag.
+    #[test]
+    fn layer_norm_normalises_the_hidden_layers_of_flagged_members_only() {
+        let mut rng = Pcg64::seed_from_u64(8);
+        let ens =
+            Ensemble::new(2, &[3, 5, 4, 1], Device::Cpu, &mut rng).with_layer_norm(&[true, false]);
+        let x: Vec<f32> = vec![0.4, -1.5, 2.2];
+        let plain = |i: i64, normalise: bool| -> f64 {
+            let mut h: Vec<f64> = x.iter().map(|&v| v as f64).collect();
+            let last = ens.layers.len() - 1;
+            for (l, layer) in ens.layers.iter().enumerate() {
+                let (w, b) = (layer.weight.get(i), layer.bias.get(i));
+                let (n_in, n_out) = (w.size()[0], w.size()[1]);
+                let mut out: Vec<f64> = (0..n_out)
+                    .map(|o| {
+                        b.double_value(&[0, o])
+                            + (0..n_in)
+                                .map(|k| h[k as usize] * w.double_value(&[k, o]))
+                                .sum::<f64>()
+                    })
+                    .collect();
+                if l < last {
+                    if normalise {
+                        let n = out.len() as f64;
+                        let mean = out.iter().sum::<f64>() / n;
+                        let var = out.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
+                        out.iter_mut()
+                            .for_each(|v| *v = (*v - mean) / (var + LAYER_NORM_EPS).sqrt());
+                    }
+                    out.iter_mut().for_each(|v| *v = v.max(0.0));
+                }
+                h = out;
+            }
+            h[0]
+        };
+        let input = Tensor::from_slice(&x)
+            .view([1, 1, 3])
+            .expand([2, 1, 3], false);
+        let out = Vec::<f32>::try_from(ens.forward(&input).reshape([-1])).unwrap();
+        for (i, normalise) in [(0, true), (1, false)] {
+            let want = plain(i, normalise);
+            assert!(
+                (out[i as usize] as f64 - want).abs() < 1e-5,
+                "member {i}: {} vs {want}",
+                out[i as usize]
+            );
+        }
+        // The unnormalised answer differs, so the check above can tell the two apart.
+        assert!((plain(0, false) - plain(0, true)).abs() > 1e-3);
+        // Selecting members [1, 0] carries their flags along.
+        let swapped = ens.select(&Tensor::from_slice(&[1i64, 0]));
+        let out = Vec::<f32>::try_from(swapped.forward(&input).reshape([-1])).unwrap();
+        assert!((out[0] as f64 - plain(1, false)).abs() < 1e-5);
+        assert!((out[1] as f64 - plain(0, true)).abs() < 1e-5);
     }
 
     #[test]

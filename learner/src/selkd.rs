@@ -15,8 +15,13 @@
 //!  19:    maximise mean_s [ (1/N) Σ_j Q_j(s, ã_i) − α_i log π_i(ã_i|s) − λ_KD J_i ]   (SAC: min_j)
 //!         and tune α_i toward the target entropy.
 //! ```
+//!
+//! The AVTD baseline (`algo.variants`) reuses the same steps for V whole agents side by side:
+//! variant v is actor v with its own N critics (in the target, its own subset, action and α; in
+//! its objective, its own critics' mean) and its own regulariser; [`Selkd::select_variant`] then
+//! lets the variant with the lowest TD error on held-out transitions act.
 
-use crate::config::{ActorQ, AlgoConfig, Backbone, Sharing};
+use crate::config::{ActorQ, AlgoConfig, Backbone, Regulariser, Sharing};
 use crate::distillation::gaussian_kl;
 use crate::dpp;
 use crate::ensemble::Ensemble;
@@ -31,6 +36,8 @@ use tch::{Device, Kind, Tensor};
 
 /// K actors, N critics and N target critics, their optimisers and temperatures.
 pub struct Selkd {
+    /// The algorithm as trained. For AVTD this is the whole of what is trained: `actors` = V
+    /// (one actor per variant, of which one acts) and `critics` = V × the config's N.
     pub cfg: AlgoConfig,
     pub obs_dim: usize,
     pub act_dim: usize,
@@ -55,7 +62,17 @@ pub struct Selkd {
     /// Off (`None`) in training. When `Some`, every random draw is appended to it, so that a test
     /// can replay the same rounds in an independent implementation (`learner/tests/crosscheck.rs`).
     pub draws: Option<Vec<Draw>>,
+    /// AVTD: the variant that acts (its actor's weights are what workers get), and each
+    /// variant's TD error on the last validation batch.
+    pub selected: usize,
+    pub validation_td: Vec<f64>,
+    /// AVTD: the L2 coefficient of each critic's weights (`[N, 1, 1]`); `None` when no variant has one.
+    critic_decay: Option<Tensor>,
 }
+
+/// AVTD re-selects its acting variant every this many rounds (our choice: often enough to follow
+/// the data, rarely enough to cost little: the validation batch is 4 mini-batches).
+pub const SELECT_EVERY_ROUNDS: u64 = 10;
 
 /// One random draw of the learner, in the order it was drawn.
 pub enum Draw {
@@ -88,11 +105,38 @@ impl Selkd {
         device: Device,
         seed: u64,
     ) -> Self {
+        // AVTD: V agents, each with the config's actor and N critics, stacked variant by variant.
+        let variants = cfg.variants.len();
+        let per_variant = cfg.critics;
+        let cfg = &AlgoConfig {
+            actors: cfg.actors * variants.max(1),
+            critics: cfg.critics * variants.max(1),
+            ..cfg.clone()
+        };
+        let regulariser_of_critic = |j: usize| cfg.variants[j / per_variant];
         // Line 1: random, independent initialisation of every actor and critic; targets copy critics.
         let mut rng = Pcg64::seed_from_u64(seed);
         let dims = |input: usize, out: usize| [vec![input], cfg.hidden.clone(), vec![out]].concat();
         let actors = Ensemble::new(cfg.actors, &dims(obs_dim, 2 * act_dim), device, &mut rng);
         let mut critics = Ensemble::new(cfg.critics, &dims(obs_dim + act_dim, 1), device, &mut rng);
+        let mut critic_decay = None;
+        if variants > 0 {
+            let of = |r: Regulariser| -> Vec<bool> {
+                (0..cfg.critics)
+                    .map(|j| regulariser_of_critic(j) == r)
+                    .collect()
+            };
+            critics = critics.with_layer_norm(&of(Regulariser::LayerNorm));
+            let decay: Vec<f32> = of(Regulariser::WeightDecay)
+                .iter()
+                .map(|&d| if d { cfg.weight_decay as f32 } else { 0.0 })
+                .collect();
+            critic_decay = decay.iter().any(|&c| c > 0.0).then(|| {
+                Tensor::from_slice(&decay)
+                    .view([-1, 1, 1])
+                    .to_device(device)
+            });
+        }
         if cfg.critic_matmul == crate::config::Precision::Bf16 {
             critics.matmul = Kind::BFloat16;
         }
@@ -117,7 +161,15 @@ impl Selkd {
             critic_updates: 0,
             actor_updates: 0,
             draws: None,
+            selected: 0,
+            validation_td: vec![f64::NAN; variants],
+            critic_decay,
         }
+    }
+
+    /// AVTD: whether this learner trains variants side by side.
+    fn avtd(&self) -> bool {
+        !self.cfg.variants.is_empty()
     }
 
     /// Lines 7–20 of Algorithm 1: G critic updates, then one update of every actor.
@@ -129,6 +181,17 @@ impl Selkd {
             stats.q_mean += q / self.cfg.utd as f64;
         }
         self.update_actors(replay, best, &mut stats);
+        if self.avtd() {
+            // Per-actor figures are the acting actor's: the variant that acts.
+            for v in [
+                &mut stats.actor_loss,
+                &mut stats.alpha,
+                &mut stats.kl_to_best,
+                &mut stats.entropy,
+            ] {
+                *v = vec![v[self.selected]];
+            }
+        }
         stats
     }
 
@@ -142,14 +205,18 @@ impl Selkd {
             Sharing::PerCritic => n,
         };
         let batch = replay.sample(groups, b, &mut self.rng);
-        let subsets: Vec<i64> = (0..groups)
-            .flat_map(|_| {
-                rand::seq::index::sample(&mut self.rng, n, m)
-                    .into_iter()
-                    .map(|j| j as i64)
-                    .collect::<Vec<_>>()
-            })
-            .collect();
+        let subsets = if self.avtd() {
+            self.variant_subsets()
+        } else {
+            (0..groups)
+                .flat_map(|_| {
+                    rand::seq::index::sample(&mut self.rng, n, m)
+                        .into_iter()
+                        .map(|j| j as i64)
+                        .collect::<Vec<_>>()
+                })
+                .collect()
+        };
         self.record(|| Draw::CriticBatch(batch.shallow_clone(), subsets.clone()));
         self.update_critics_on(&batch, &subsets)
     }
@@ -162,6 +229,8 @@ impl Selkd {
         let y = tch::no_grad(|| {
             if self.cfg.paired_critics {
                 self.paired_target(&batch.reward, &batch.terminated, &batch.next_obs)
+            } else if self.avtd() {
+                self.variant_target(&batch.reward, &batch.terminated, &batch.next_obs, subsets)
             } else {
                 self.target(
                     &batch.reward,
@@ -180,7 +249,17 @@ impl Selkd {
         let loss = per_critic.sum(Kind::Float);
         match self.cfg.trained_critics {
             None => {
-                loss.backward();
+                match &self.critic_decay {
+                    // AVTD's weight-decay variants: ½ c_j ‖W‖² over critic j's weight matrices.
+                    Some(c) => {
+                        let penalty = self.critics.layers.iter().fold(
+                            Tensor::zeros([], (Kind::Float, self.device)),
+                            |acc, layer| acc + (c * layer.weight.square()).sum(Kind::Float) * 0.5,
+                        );
+                        (&loss + penalty).backward();
+                    }
+                    None => loss.backward(),
+                }
                 self.critic_opt.step(&self.critics.params());
             }
             // DNS: only k critics learn from this batch, drawn by a k-DPP over how alike the
@@ -266,10 +345,96 @@ impl Selkd {
         y.index_select(0, &Tensor::from_slice(&owner).to_device(self.device))
     }
 
-    /// Paired critics: the critics actor `i` owns.
+    /// Paired critics and AVTD: the critics actor `i` owns (DPD: N/K consecutive critics; AVTD:
+    /// variant i's N).
     fn critics_of(&self, i: i64) -> Vec<i64> {
         let (k, n) = (self.cfg.actors as i64, self.cfg.critics as i64);
         (0..n).filter(|j| j * k / n == i).collect()
+    }
+
+    /// AVTD: each variant's own random subset of M of its N critics, `[V × M]` indices.
+    fn variant_subsets(&mut self) -> Vec<i64> {
+        let (v, m) = (self.cfg.actors, self.cfg.subset);
+        let per_variant = self.cfg.critics / v;
+        (0..v)
+            .flat_map(|i| {
+                rand::seq::index::sample(&mut self.rng, per_variant, m)
+                    .into_iter()
+                    .map(move |j| (i * per_variant + j) as i64)
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    }
+
+    /// AVTD's target: variant v's REDQ target, `r + γ(1 − d)(min_{m ∈ 𝓜_v} Q̄_m(s', ã'_v) −
+    /// α_v log π_v(ã'_v|s'))`, with its own actor, α and subset (`subsets`, V × M indices).
+    /// Returns y per critic, `[V·N, B]`.
+    fn variant_target(
+        &mut self,
+        reward: &Tensor,
+        terminated: &Tensor,
+        next_obs: &Tensor,
+        subsets: &[i64],
+    ) -> Tensor {
+        let (v, n, m) = (
+            self.cfg.actors as i64,
+            self.cfg.critics as i64,
+            self.cfg.subset as i64,
+        );
+        let b = next_obs.size()[1];
+        let s2 = next_obs.reshape([1, b, -1]).expand([v, b, -1], false);
+        let (a2, logp2) = self.next_actions(&s2);
+        // Variant v's next state-action pairs go through its M subset critics.
+        let x2 = Tensor::cat(&[&s2, &a2], -1)
+            .unsqueeze(1)
+            .expand([v, m, b, -1], false)
+            .reshape([v * m, b, -1]);
+        let index = Tensor::from_slice(subsets).to_device(self.device);
+        let q_next = self
+            .target_critics
+            .select(&index)
+            .forward(&x2)
+            .view([v, m, b])
+            .amin(1, false);
+        let soft_value = q_next - self.alpha().view([v, 1]) * logp2;
+        let y: Tensor =
+            reward.view([1, b]) + (1.0 - terminated.view([1, b])) * self.cfg.gamma * soft_value;
+        let owner: Vec<i64> = (0..n).map(|j| j * v / n).collect();
+        y.index_select(0, &Tensor::from_slice(&owner).to_device(self.device))
+    }
+
+    /// AVTD's selection: each variant's TD error on a batch of held-out validation transitions
+    /// (its critics' mean of ½ (Q_j(s, a) − y_j)², y as in training), and the variant with the
+    /// lowest acts from now on. Runs every [`SELECT_EVERY_ROUNDS`] rounds once `validation` holds
+    /// a mini-batch. Returns whether the acting variant changed.
+    pub fn select_variant(&mut self, validation: &mut ReplayBuffer) -> bool {
+        if !self.avtd()
+            || validation.len() < self.cfg.batch_size
+            || !self.actor_updates.is_multiple_of(SELECT_EVERY_ROUNDS)
+        {
+            return false;
+        }
+        let batch = validation.sample(1, 4 * self.cfg.batch_size, &mut self.rng);
+        let subsets = self.variant_subsets();
+        self.record(|| Draw::CriticBatch(batch.shallow_clone(), subsets.clone()));
+        self.validation_td = tch::no_grad(|| self.validation_errors(&batch, &subsets));
+        let before = self.selected;
+        self.selected = (0..self.validation_td.len())
+            .min_by(|&a, &b| self.validation_td[a].total_cmp(&self.validation_td[b]))
+            .expect("at least one variant");
+        self.selected != before
+    }
+
+    /// Each variant's validation TD error on `batch` (one group of rows) with `subsets` (V × M).
+    fn validation_errors(&mut self, batch: &Batch, subsets: &[i64]) -> Vec<f64> {
+        let (v, n) = (self.cfg.actors as i64, self.cfg.critics as i64);
+        let rows = batch.obs.size()[1];
+        let y = self.variant_target(&batch.reward, &batch.terminated, &batch.next_obs, subsets);
+        let x = Tensor::cat(&[&batch.obs, &batch.act], -1).expand([n, rows, -1], false);
+        let q = self.critics.forward(&x).squeeze_dim(-1);
+        let per_critic = ((&q - &y).square() * 0.5).mean_dim(1, false, Kind::Float);
+        let per_variant = per_critic.view([v, -1]).mean_dim(1, false, Kind::Double);
+        Vec::<f64>::try_from(per_variant.to_device(Device::Cpu)).expect("f64 errors")
     }
 
     /// y for `groups` groups of next states `[groups, B, obs]`, each with its own subset of M
@@ -358,25 +523,23 @@ impl Selkd {
         };
         // (1/N) Σ_j Q_j(s, ã_i(s)) (or, SAC's actor, min_j): the critics are fixed here, only
         // the actor moves.
-        let x = Tensor::cat(&[s, &a], -1)
-            .reshape([1, k * b, -1])
-            .expand([n, k * b, -1], false);
-        let q_all = self.critics.detached().forward(&x).view([n, k, b]);
-        let reduce = |q: &Tensor| match self.cfg.actor_q {
-            ActorQ::Mean => q.mean_dim(0, false, Kind::Float),
-            ActorQ::Min => q.amin(0, false),
+        let reduce = |q: &Tensor, dim: i64| match self.cfg.actor_q {
+            ActorQ::Mean => q.mean_dim(dim, false, Kind::Float),
+            ActorQ::Min => q.amin(dim, false),
         };
-        let q = if self.cfg.paired_critics {
-            // DPD: each actor is judged by its own critics only.
-            let per_actor: Vec<Tensor> = (0..k)
-                .map(|i| {
-                    let own = Tensor::from_slice(&self.critics_of(i)).to_device(self.device);
-                    reduce(&q_all.select(1, i).index_select(0, &own))
-                })
-                .collect();
-            Tensor::stack(&per_actor, 0)
+        let q = if self.cfg.paired_critics || self.avtd() {
+            // DPD and AVTD: each actor is judged by its own critics only (the N/K consecutive
+            // critics j with ⌊j·K/N⌋ = i), so each critic sees only its owner's states.
+            let owner: Vec<i64> = (0..n).map(|j| j * k / n).collect();
+            let owner = Tensor::from_slice(&owner).to_device(self.device);
+            let x = Tensor::cat(&[s, &a], -1).index_select(0, &owner);
+            let q_own = self.critics.detached().forward(&x).view([k, n / k, b]);
+            reduce(&q_own, 1)
         } else {
-            reduce(&q_all)
+            let x = Tensor::cat(&[s, &a], -1)
+                .reshape([1, k * b, -1])
+                .expand([n, k * b, -1], false);
+            reduce(&self.critics.detached().forward(&x).view([n, k, b]), 0)
         };
         // Line 18: distillation toward the best actor, held fixed, on actor i's own states.
         // The reference each actor distils toward: the best actor (SELKD), or with paired critics
@@ -407,8 +570,11 @@ impl Selkd {
         // The best actor has no KD term; with `kd_actors` (ablation w/o KD) only those listed do.
         let kd: Vec<f32> = (0..self.cfg.actors)
             .map(|i| {
+                // AVTD's variants are independent agents: none distils.
                 let distils = self.cfg.paired_critics
-                    || (i != best && self.cfg.kd_actors.as_ref().is_none_or(|l| l.contains(&i)));
+                    || (!self.avtd()
+                        && i != best
+                        && self.cfg.kd_actors.as_ref().is_none_or(|l| l.contains(&i)));
                 if distils {
                     self.cfg.kd_weight as f32
                 } else {
@@ -478,9 +644,10 @@ impl Selkd {
         }
     }
 
-    /// Actor `i`'s weights in the flat layout workers use.
+    /// Acting actor `i`'s weights in the flat layout workers use (AVTD: the selected variant's).
     pub fn actor_weights(&self, i: usize) -> Vec<f32> {
-        self.actors.member_flat(i as i64)
+        let member = if self.avtd() { self.selected } else { i };
+        self.actors.member_flat(member as i64)
     }
 }
 
@@ -1427,11 +1594,12 @@ mod tests {
             epoch_ends: vec![],
             ranking: crate::ranking::Ranking::new(2, 1),
             wall_seconds: 0.0,
+            selected_variant: 0,
         };
-        checkpoint::save(&dir, &a, Some(&mut rb), &state).unwrap();
+        checkpoint::save(&dir, &a, Some((&mut rb, None)), &state).unwrap();
         let mut b = Selkd::new(&cfg, 3, 2, Device::Cpu, 99);
         let mut rb2 = ReplayBuffer::new(1000, 3, 2, Device::Cpu);
-        checkpoint::load(&dir, &mut b, &mut rb2).unwrap();
+        checkpoint::load(&dir, &mut b, &mut rb2, None).unwrap();
         assert_eq!(rb2.len(), rb.len());
         // One actor, loaded for acting (`selkd render`): its own weights; the best by default.
         let one = checkpoint::load_actor(&dir, Some(1)).unwrap();
@@ -1460,5 +1628,212 @@ mod tests {
             Vec::<f32>::try_from(b.alpha()).unwrap()
         );
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    fn avtd(variants: Vec<Regulariser>, n: usize) -> AlgoConfig {
+        AlgoConfig {
+            variants,
+            ..small(1, n, 2)
+        }
+    }
+
+    /// AVTD's target by hand: variant v's y is REDQ's with v's own actor, α and subset of its own
+    /// critics; every critic regresses on its variant's y.
+    #[test]
+    fn avtd_targets_are_each_variants_own_redq_target() {
+        let (obs, act, per) = (3, 2, 3);
+        let cfg = avtd(vec![Regulariser::None, Regulariser::WeightDecay], per);
+        let mut s = Selkd::new(&cfg, obs, act, Device::Cpu, 4);
+        assert_eq!((s.cfg.actors, s.cfg.critics), (2, 6));
+        // Different α per variant, so that using the wrong one shows.
+        tch::no_grad(|| {
+            let _ = s
+                .log_alpha
+                .shallow_clone()
+                .copy_(&Tensor::from_slice(&[0.0f32, -1.0]));
+        });
+        let rb = filled_replay(obs, act, 200);
+        let mut rb = rb;
+        let batch = rb.sample(1, cfg.batch_size, &mut Pcg64::seed_from_u64(9));
+        let subsets = [2i64, 0, 3, 5]; // variant 0: critics 2, 0; variant 1: critics 3, 5
+        let mut peek = s.rng.clone();
+        let b_size = cfg.batch_size;
+        let eps: Vec<f64> = (0..2 * b_size * act)
+            .map(|_| StandardNormal.sample(&mut peek))
+            .map(|e: f32| e as f64)
+            .collect();
+        let y = tch::no_grad(|| {
+            s.variant_target(&batch.reward, &batch.terminated, &batch.next_obs, &subsets)
+        });
+        assert_eq!(y.size(), [6, b_size as i64]);
+        let alphas = [1.0, (-1.0f64).exp()];
+        for b in 0..b_size {
+            let s2 = row(&batch.next_obs, 0, b as i64);
+            let (r, d) = (
+                batch.reward.double_value(&[0, b as i64]),
+                batch.terminated.double_value(&[0, b as i64]),
+            );
+            for j in 0..6 {
+                let v = j / per;
+                let head = mlp(&s.actors, v as i64, &s2);
+                let e = &eps[(v * b_size + b) * act..(v * b_size + b + 1) * act];
+                let (mut a2, mut logp) = (Vec::new(), 0.0);
+                for dim in 0..act {
+                    let (mu, ls) = (head[dim], head[act + dim].clamp(-20.0, 2.0));
+                    let u = mu + ls.exp() * e[dim];
+                    logp += -0.5 * e[dim] * e[dim]
+                        - ls
+                        - 0.5 * (2.0 * std::f64::consts::PI).ln()
+                        - (1.0 - u.tanh().powi(2) + 1e-6).ln();
+                    a2.push(u.tanh() as f32);
+                }
+                let x2: Vec<f32> = s2.iter().chain(&a2).copied().collect();
+                let min = subsets[2 * v..2 * v + 2]
+                    .iter()
+                    .map(|&m| mlp(&s.target_critics, m, &x2)[0])
+                    .fold(f64::INFINITY, f64::min);
+                let want = r + 0.99 * (1.0 - d) * (min - alphas[v] * logp);
+                let got = y.double_value(&[j as i64, b as i64]);
+                assert!(
+                    (got - want).abs() < 1e-4 * want.abs().max(1.0),
+                    "critic {j} row {b}: {got} vs {want}"
+                );
+            }
+        }
+    }
+
+    /// With γ = 0 and every critic weight zero, variant v's critics all say Q = b_v (their last
+    /// bias), so its validation TD error is mean ½(b_v − r)², known by hand; the lowest acts.
+    #[test]
+    fn avtd_selects_the_variant_with_the_lowest_validation_td_error() {
+        let cfg = AlgoConfig {
+            gamma: 0.0,
+            ..avtd(
+                vec![
+                    Regulariser::None,
+                    Regulariser::LayerNorm,
+                    Regulariser::WeightDecay,
+                ],
+                2,
+            )
+        };
+        let mut s = Selkd::new(&cfg, 3, 1, Device::Cpu, 6);
+        let set_biases = |s: &Selkd, b: [f32; 3]| {
+            tch::no_grad(|| {
+                for layer in &s.critics.layers {
+                    let _ = layer.weight.shallow_clone().zero_();
+                    let _ = layer.bias.shallow_clone().zero_();
+                }
+                let per_critic: Vec<f32> = b.iter().flat_map(|&v| [v, v]).collect();
+                let last = s.critics.layers.last().unwrap();
+                let _ = last
+                    .bias
+                    .shallow_clone()
+                    .copy_(&Tensor::from_slice(&per_critic).view([6, 1, 1]));
+            });
+        };
+        let mut validation = ReplayBuffer::new(100, 3, 1, Device::Cpu);
+        for t in 0..50 {
+            let x = t as f32 / 50.0;
+            validation.push(&[x, -x, 0.5], &[0.1], 1.0, &[x, x, x], t % 9 == 0);
+        }
+        set_biases(&s, [0.0, 0.9, 3.0]);
+        assert!(
+            s.select_variant(&mut validation),
+            "variant 1 replaces variant 0"
+        );
+        assert_eq!(s.selected, 1);
+        for (got, want) in s.validation_td.iter().zip([0.5, 0.005, 2.0]) {
+            assert!((got - want).abs() < 1e-6, "{:?}", s.validation_td);
+        }
+        assert_eq!(
+            s.actor_weights(0),
+            s.actors.member_flat(1),
+            "the selected variant acts"
+        );
+        // Only every SELECT_EVERY_ROUNDS rounds.
+        set_biases(&s, [0.0, 0.9, 1.0]);
+        s.actor_updates = 3;
+        assert!(!s.select_variant(&mut validation));
+        s.actor_updates = 2 * SELECT_EVERY_ROUNDS;
+        assert!(s.select_variant(&mut validation));
+        assert_eq!(s.selected, 2);
+        // Never from fewer validation rows than a mini-batch.
+        let mut few = ReplayBuffer::new(100, 3, 1, Device::Cpu);
+        few.push(&[0.0; 3], &[0.0], 0.0, &[0.0; 3], false);
+        set_biases(&s, [1.0, 0.0, 0.0]);
+        assert!(!s.select_variant(&mut few));
+    }
+
+    /// The weight-decay variant's critics get ½ c ‖W‖² added to their loss: their gradient (Adam's
+    /// first moment after one step, (1 − β1) g) exceeds the plain one by exactly (1 − β1) c W on
+    /// weights; biases and the other variant's critics are untouched.
+    #[test]
+    fn avtd_weight_decay_adds_c_w_to_the_decayed_critics_gradient_only() {
+        let c = 0.5;
+        let variants = vec![Regulariser::None, Regulariser::WeightDecay];
+        let with = AlgoConfig {
+            weight_decay: c,
+            ..avtd(variants.clone(), 2)
+        };
+        let without = AlgoConfig {
+            weight_decay: 0.0,
+            ..avtd(variants, 2)
+        };
+        let (mut a, mut b) = (
+            Selkd::new(&with, 3, 2, Device::Cpu, 7),
+            Selkd::new(&without, 3, 2, Device::Cpu, 7),
+        );
+        let weights_before: Vec<Tensor> = a
+            .critics
+            .layers
+            .iter()
+            .map(|l| l.weight.detach().copy())
+            .collect();
+        a.update_critics(&mut filled_replay(3, 2, 100));
+        b.update_critics(&mut filled_replay(3, 2, 100));
+        for (l, w) in weights_before.iter().enumerate() {
+            let diff = &a.critic_opt.exp_avg[2 * l] - &b.critic_opt.exp_avg[2 * l];
+            for j in 0..4 {
+                let want = if j >= 2 {
+                    w.get(j) * (0.1 * c)
+                } else {
+                    w.get(j).zeros_like()
+                };
+                let err = (diff.get(j) - want).abs().max().double_value(&[]);
+                assert!(err < 1e-6, "layer {l} critic {j}: off by {err}");
+            }
+            let bias = (&a.critic_opt.exp_avg[2 * l + 1] - &b.critic_opt.exp_avg[2 * l + 1])
+                .abs()
+                .max()
+                .double_value(&[]);
+            assert!(bias < 1e-7, "biases are not decayed");
+        }
+    }
+
+    /// Each variant's subset: M distinct critics of its own N, uniform over them.
+    #[test]
+    fn avtd_subsets_are_uniform_draws_from_each_variants_own_critics() {
+        let (per, m, draws) = (4, 2, 4000);
+        let mut s = Selkd::new(&avtd(vec![Regulariser::None; 3], per), 3, 1, Device::Cpu, 8);
+        let mut count = vec![0usize; 3 * per];
+        for _ in 0..draws {
+            let subsets = s.variant_subsets();
+            assert_eq!(subsets.len(), 3 * m);
+            for (v, pair) in subsets.chunks(m).enumerate() {
+                assert_ne!(pair[0], pair[1]);
+                for &j in pair {
+                    assert_eq!(j as usize / per, v, "{subsets:?}");
+                    count[j as usize] += 1;
+                }
+            }
+        }
+        let expected = (draws * m / per) as f64; // 2000
+        for c in count {
+            assert!(
+                (c as f64 - expected).abs() < 5.0 * (expected * 0.5).sqrt(),
+                "{c} of {expected}"
+            );
+        }
     }
 }

@@ -57,6 +57,9 @@ pub struct Learner {
     row: TransitionRow,
     selkd: Selkd,
     replay: ReplayBuffer,
+    /// AVTD: the held-out validation transitions (every `algo.validation_every`-th stored), never
+    /// trained on; `None` for every other method.
+    validation: Option<ReplayBuffer>,
     ranking: Ranking,
     limiter: RateLimiter,
     /// Per worker: where its rollout stands, as received.
@@ -111,13 +114,18 @@ impl Learner {
         check_matmul(cfg.algo.critic_matmul, device)?;
         let mut replay =
             ReplayBuffer::new(cfg.algo.replay_capacity, spec.obs_dim, spec.act_dim, device);
+        // AVTD's validation rows: the same FIFO, its share of the capacity.
+        let mut validation = (!cfg.algo.variants.is_empty()).then(|| {
+            let capacity = (cfg.algo.replay_capacity as u64 / cfg.algo.validation_every).max(1);
+            ReplayBuffer::new(capacity as usize, spec.obs_dim, spec.act_dim, device)
+        });
         let warmup_total = cfg.warmup_per_actor() * k as u64;
         std::fs::create_dir_all(run_dir.join("checkpoints"))
             .with_context(|| format!("creating {}", run_dir.display()))?;
         let metrics_path = run_dir.join("metrics.csv");
         let resumed = match resume {
             Some(dir) => {
-                let state = checkpoint::load(dir, &mut selkd, &mut replay)
+                let state = checkpoint::load(dir, &mut selkd, &mut replay, validation.as_mut())
                     .with_context(|| format!("resuming from {}", dir.display()))?;
                 if replay.is_empty() {
                     tracing::warn!("the checkpoint holds no replay buffer: training resumes on an empty one (set run.checkpoint_replay = true to keep it)");
@@ -224,6 +232,7 @@ impl Learner {
             run_dir: run_dir.to_path_buf(),
             selkd,
             replay,
+            validation,
             cfg,
         })
     }
@@ -567,7 +576,12 @@ impl Learner {
     fn store(&mut self, p: Pending) {
         if let Some(row) = &p.row {
             let (s, a, r, s2, terminated, _truncated) = self.row.split(row);
-            self.replay.push(s, a, r, s2, terminated);
+            // AVTD holds out every n-th transition (by arrival order, so sync runs reproduce).
+            let held_out = (self.inserted + 1).is_multiple_of(self.cfg.algo.validation_every);
+            match &mut self.validation {
+                Some(validation) if held_out => validation.push(s, a, r, s2, terminated),
+                _ => self.replay.push(s, a, r, s2, terminated),
+            }
         }
         self.inserted += 1;
         if let Some(episode_return) = p.episode_return {
@@ -634,6 +648,18 @@ impl Learner {
     fn train_round(&mut self) -> Result<()> {
         let best = self.ranking.best();
         self.last_stats = self.selkd.train_round(&mut self.replay, best);
+        if let Some(validation) = &mut self.validation {
+            if self.selkd.select_variant(validation) {
+                let v = self.selkd.selected;
+                // Debug level: with close variants the selection can change every few rounds.
+                tracing::debug!(
+                    env_steps = self.inserted,
+                    "AVTD: variant {v} ({:?}) acts now; validation TD errors {:?}",
+                    self.cfg.algo.variants[v],
+                    self.selkd.validation_td
+                );
+            }
+        }
         let st = &self.last_stats;
         if !st.critic_loss.is_finite()
             || !st.q_mean.is_finite()
@@ -797,6 +823,12 @@ impl Learner {
         for (i, (a, kl)) in st.alpha.iter().zip(&st.kl_to_best).enumerate() {
             values.push((format!("live/alpha_{i}"), *a));
             values.push((format!("live/kl_to_best_{i}"), *kl));
+        }
+        if self.validation.is_some() {
+            values.push(("avtd/selected".into(), self.selkd.selected as f64));
+            for (v, td) in self.selkd.validation_td.iter().enumerate() {
+                values.push((format!("avtd/validation_td_{v}"), *td));
+            }
         }
         self.write_scalars(self.inserted, &values);
     }
@@ -977,8 +1009,13 @@ impl Learner {
             epoch_ends: self.epoch_ends.iter().copied().collect(),
             ranking: self.ranking.clone(),
             wall_seconds: self.wall(),
+            selected_variant: self.selkd.selected,
         };
-        let replay = self.cfg.run.checkpoint_replay.then_some(&mut self.replay);
+        let replay = self
+            .cfg
+            .run
+            .checkpoint_replay
+            .then_some((&mut self.replay, self.validation.as_mut()));
         checkpoint::save(&dir, &self.selkd, replay, &state)?;
         checkpoint::write_atomically(
             &self.run_dir.join("checkpoints").join("latest"),
@@ -1173,6 +1210,43 @@ mod tests {
             left,
             ["final", "latest", "step-10000", "step-3000", "step-x"]
         );
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[test]
+    fn avtd_holds_out_every_nth_transition_and_never_trains_on_it() {
+        let dir = std::env::temp_dir().join(format!("selkd-avtd-split-{}", std::process::id()));
+        let mut cfg = Config::default();
+        cfg.run.mode = Mode::Async;
+        cfg.algo.actors = 1;
+        cfg.algo.variants = vec![crate::config::Regulariser::None; 2];
+        cfg.algo.validation_every = 4;
+        cfg.algo.warmup_steps = 1_000_000; // no training: only the split is under test
+        cfg.validate().unwrap();
+        let mut l = Learner::new(cfg, &dir, None).unwrap();
+        l.accepting = vec![Some(7)];
+        // Transition t (1-based) carries t in its first observation entry.
+        for t in 1..=40 {
+            let row = [t as f32, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+            l.on_transition(header(0), &row);
+        }
+        l.replay.flush();
+        let validation = l.validation.as_mut().expect("AVTD has a validation buffer");
+        validation.flush();
+        let first = |b: &mut ReplayBuffer| -> Vec<f32> {
+            let mut v = Vec::<f32>::try_from(b.export().select(1, 0)).unwrap();
+            v.sort_by(f32::total_cmp);
+            v
+        };
+        let held: Vec<f32> = (1..=10).map(|i| (4 * i) as f32).collect();
+        assert_eq!(first(validation), held, "the 4th, 8th, … transitions");
+        let trained = first(&mut l.replay);
+        assert_eq!(trained.len(), 30);
+        assert!(
+            trained.iter().all(|t| !held.contains(t)),
+            "a held-out transition is in the replay buffer: {trained:?}"
+        );
+        assert_eq!(l.inserted, 40, "held-out transitions count as env steps");
         let _ = std::fs::remove_dir_all(dir);
     }
 
