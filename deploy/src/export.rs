@@ -85,10 +85,12 @@ fn run_inner(args: ExportArgs) -> Result<()> {
 
     let scores = state.ranking.scores();
     // The ranking scores the acting actors; AVTD's only acting actor is the selected variant.
-    let score = if cfg.algo.variants.is_empty() {
-        scores.get(loaded.index).copied()
+    let score: Option<f64> = if cfg.algo.variants.is_empty() {
+        scores.get(loaded.index).copied().flatten()
     } else {
-        (loaded.index == state.selected_variant).then(|| scores[0])
+        (loaded.index == state.selected_variant)
+            .then(|| scores[0])
+            .flatten()
     };
     let metadata = serde_json::json!({
         "format": "selkd-policy",
@@ -124,7 +126,7 @@ fn run_inner(args: ExportArgs) -> Result<()> {
         loaded.index,
         loaded.actors,
         spec.id,
-        scores[loaded.index].map_or("none yet".to_string(), |s| format!("{s:.1}")),
+        score.map_or("none yet".to_string(), |s| format!("{s:.1}")),
         args.out.display(),
         if args.onnx { " (with policy.onnx)" } else { "" }
     );

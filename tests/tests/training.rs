@@ -191,6 +191,23 @@ fn avtd_learns_pendulum_beyond_a_random_policy() {
         .as_u64()
         .expect("AVTD checkpoints its selection");
     assert!(selected < 3);
+    // The run's policy is the selected variant's actor.
+    let bundle = dir.join("bundle");
+    let mut export = std::process::Command::new(bin("selkd"));
+    export.arg("export").arg(&dir).arg("--out").arg(&bundle);
+    let out = run(export);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(bundle.join("policy.json")).unwrap())
+            .unwrap();
+    assert_eq!(meta["actor"].as_u64(), Some(selected), "{meta}");
+    assert_eq!(meta["best_actor"].as_u64(), Some(selected));
+    assert_eq!(meta["actors"].as_u64(), Some(3));
+    assert!(meta["score"].is_number(), "{meta}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
