@@ -78,13 +78,27 @@ impl Ensemble {
             };
             if l < last {
                 if let Some(flags) = &self.layer_norm {
-                    // Every member is normalised, and the flags pick the normalised or the raw
-                    // values: one stacked operation, exact for both kinds of member.
-                    let mean = h.mean_dim(-1, true, Kind::Float);
-                    let centred = &h - &mean;
-                    let var = centred.square().mean_dim(-1, true, Kind::Float);
-                    let normed = &centred * (var + LAYER_NORM_EPS).rsqrt();
-                    h = normed.where_self(flags, &h);
+                    // libtorch's fused layer norm, on the flagged members only.
+                    let members = flags.view([-1]).nonzero().view([-1]);
+                    let width = h.size()[2];
+                    if members.size()[0] == h.size()[0] {
+                        h = h.layer_norm(
+                            [width],
+                            None::<Tensor>,
+                            None::<Tensor>,
+                            LAYER_NORM_EPS,
+                            false,
+                        );
+                    } else if members.size()[0] > 0 {
+                        let normed = h.index_select(0, &members).layer_norm(
+                            [width],
+                            None::<Tensor>,
+                            None::<Tensor>,
+                            LAYER_NORM_EPS,
+                            false,
+                        );
+                        h = h.index_copy(0, &members, &normed);
+                    }
                 }
                 h = h.relu();
             }

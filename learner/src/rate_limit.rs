@@ -66,6 +66,16 @@ mod tests {
         assert!((got - want).abs() / want < 0.01, "{got} vs {want}");
     }
 
+    /// The reported ratio against hand values: critic updates per transition after warm-up
+    /// (counted from one transition while none are), and G/K beside it.
+    #[test]
+    fn ratio_is_updates_per_transition_after_warmup_beside_g_over_k() {
+        let r = RateLimiter::new(5, 20, 5000, 100.0);
+        assert_eq!(r.ratio(2000, 6000), (2.0, 4.0));
+        assert_eq!(r.ratio(3, 4000), (3.0, 4.0));
+        assert_eq!(RateLimiter::new(2, 3, 10, 100.0).ratio(9, 16), (1.5, 1.5));
+    }
+
     #[test]
     fn workers_wait_when_the_learner_falls_behind_by_the_tolerance() {
         let r = RateLimiter::new(2, 20, 100, 100.0); // tolerance 100 updates = 5 rounds

@@ -66,8 +66,9 @@ pub struct Selkd {
     /// variant's TD error on the last validation batch.
     pub selected: usize,
     pub validation_td: Vec<f64>,
-    /// AVTD: the L2 coefficient of each critic's weights (`[N, 1, 1]`); `None` when no variant has one.
-    critic_decay: Option<Tensor>,
+    /// AVTD: the critics with L2 weight decay (member indices) and its coefficient c; `None`
+    /// when no variant has one.
+    critic_decay: Option<(Tensor, f64)>,
 }
 
 /// AVTD re-selects its acting variant every this many rounds (our choice: often enough to follow
@@ -127,14 +128,14 @@ impl Selkd {
                     .collect()
             };
             critics = critics.with_layer_norm(&of(Regulariser::LayerNorm));
-            let decay: Vec<f32> = of(Regulariser::WeightDecay)
-                .iter()
-                .map(|&d| if d { cfg.weight_decay as f32 } else { 0.0 })
+            let decayed: Vec<i64> = (0..cfg.critics as i64)
+                .filter(|&j| of(Regulariser::WeightDecay)[j as usize])
                 .collect();
-            critic_decay = decay.iter().any(|&c| c > 0.0).then(|| {
-                Tensor::from_slice(&decay)
-                    .view([-1, 1, 1])
-                    .to_device(device)
+            critic_decay = (!decayed.is_empty() && cfg.weight_decay > 0.0).then(|| {
+                (
+                    Tensor::from_slice(&decayed).to_device(device),
+                    cfg.weight_decay,
+                )
             });
         }
         if cfg.critic_matmul == crate::config::Precision::Bf16 {
@@ -249,16 +250,16 @@ impl Selkd {
         let loss = per_critic.sum(Kind::Float);
         match self.cfg.trained_critics {
             None => {
-                match &self.critic_decay {
-                    // AVTD's weight-decay variants: ½ c_j ‖W‖² over critic j's weight matrices.
-                    Some(c) => {
-                        let penalty = self.critics.layers.iter().fold(
-                            Tensor::zeros([], (Kind::Float, self.device)),
-                            |acc, layer| acc + (c * layer.weight.square()).sum(Kind::Float) * 0.5,
-                        );
-                        (&loss + penalty).backward();
-                    }
-                    None => loss.backward(),
+                loss.backward();
+                // AVTD's weight-decay variants: ½ c ‖W‖² over their critics' weight matrices
+                // in the loss, added as its gradient c·W (as torch.optim.Adam's weight_decay).
+                if let Some((members, c)) = &self.critic_decay {
+                    tch::no_grad(|| {
+                        for layer in &self.critics.layers {
+                            let decay = layer.weight.index_select(0, members) * *c;
+                            let _ = layer.weight.grad().index_add_(0, members, &decay);
+                        }
+                    });
                 }
                 self.critic_opt.step(&self.critics.params());
             }
