@@ -1,5 +1,8 @@
 //! Times one critic-ensemble update against its GEMM-bound core at the benchmark's sizes
-//! (a profiling aid: the gap is the overhead worth attacking).
+//! (a profiling aid: the gap is the overhead worth attacking), and the bare batched matmuls of
+//! the critics' layer shapes: the ceiling of this CPU's libtorch for them.
+//!
+//!     THREADS=1 cargo run --release -p selkd-learner --example profile_update
 use rand::{Rng, SeedableRng};
 use selkd_learner::config::AlgoConfig;
 use selkd_learner::replay::ReplayBuffer;
@@ -18,7 +21,33 @@ fn time(name: &str, n: usize, mut f: impl FnMut()) {
     );
 }
 fn main() {
-    tch::set_num_threads(2);
+    let threads = std::env::var("THREADS")
+        .ok()
+        .and_then(|t| t.parse().ok())
+        .unwrap_or(2);
+    tch::set_num_threads(threads);
+    // The critics' forward and backward matmuls (N = 10, B = 256, 35 inputs, 256 hidden): what
+    // they reach alone.
+    for (m, k, n) in [
+        (256, 256, 256),
+        (256, 35, 256),
+        (35, 256, 256),
+        (256, 256, 1),
+    ] {
+        let a = Tensor::randn([10, m, k], (Kind::Float, Device::Cpu));
+        let b = Tensor::randn([10, k, n], (Kind::Float, Device::Cpu));
+        let t0 = Instant::now();
+        let reps = 50;
+        for _ in 0..reps {
+            let _ = a.bmm(&b);
+        }
+        let dt = t0.elapsed().as_secs_f64() / reps as f64;
+        println!(
+            "bmm [10,{m},{k}]×[10,{k},{n}]: {:.3} ms, {:.1} GFLOP/s",
+            dt * 1e3,
+            20.0 * (m * k * n) as f64 / dt / 1e9
+        );
+    }
     selkd_learner::keep_freed_memory();
     let cfg = AlgoConfig::default();
     let (obs, act) = (27, 8);
