@@ -217,6 +217,32 @@ mod tests {
         }
     }
 
+    /// A flush whose staged rows run past the ring's end writes them in two pieces: the first up
+    /// to the end, the rest from the start, each row where it belongs.
+    #[test]
+    fn a_flush_that_wraps_round_the_ring_keeps_every_row_in_order() {
+        let mut rb = ReplayBuffer::new(10, 1, 1, Device::Cpu);
+        let push = |rb: &mut ReplayBuffer, t: usize| {
+            let v = t as f32;
+            rb.push(&[v], &[-v], 0.5 * v, &[v + 0.25], t % 2 == 0);
+        };
+        (0..8).for_each(|t| push(&mut rb, t));
+        rb.flush(); // cursor at 8
+        (8..13).for_each(|t| push(&mut rb, t)); // 2 rows to the end, 3 from the start
+        let rows = rb.export();
+        assert_eq!(rows.size(), [10, 5]);
+        for (i, t) in (3..13).enumerate() {
+            let row = Vec::<f32>::try_from(rows.get(i as i64)).unwrap();
+            let v = t as f32;
+            assert_eq!(
+                row,
+                [v, -v, 0.5 * v, v + 0.25, (t % 2 == 0) as u8 as f32],
+                "row {i}"
+            );
+        }
+        assert_eq!(rb.len(), 10);
+    }
+
     /// Rows wait in a staging area until a sample, an export or 4096 of them flush them; the
     /// counts must be right before that flush too (the learner reports them every round).
     #[test]
