@@ -145,11 +145,14 @@ def _checkpoint(path: Path, actor: str | int) -> SelkdPolicy:
         raise SelkdError(f"{path}/model.safetensors holds no actor (no tensor actors.0.weight)")
     k = layers[0][0].shape[0]
     scores = _scores(state["ranking"])
-    best = _best(scores)
+    cfg = state["config"]
+    # AVTD: the actors are the variants, of which the selected one acts (and holds the score).
+    avtd = bool(cfg["algo"].get("variants"))
+    best = state.get("selected_variant", 0) if avtd else _best(scores)
     index = best if actor == "best" else int(actor)
     if not 0 <= index < k:
         raise SelkdError(f"actor {actor}: the checkpoint has {k} actors (0 to {k - 1})")
-    cfg = state["config"]
+    score = (scores[0] if index == best else None) if avtd else scores[index]
     obs_dim = layers[0][0].shape[1]
     act_dim = layers[-1][0].shape[2] // 2
     hidden = [w.shape[2] for w, _ in layers[:-1]]
@@ -159,7 +162,7 @@ def _checkpoint(path: Path, actor: str | int) -> SelkdPolicy:
             "env_options": cfg.get("env_options", {}), "gymnasium_action_scale": scale,
             "obs_dim": obs_dim, "act_dim": act_dim, "hidden": hidden, "activation": "relu",
             "log_std_min": -20.0, "log_std_max": 2.0, "squash": "tanh", "actor": index,
-            "actors": k, "best_actor": best, "score": scores[index], "scores": scores,
+            "actors": k, "best_actor": best, "score": score, "scores": scores,
             "env_steps": sum(state["received"]), "checkpoint": str(path.resolve()), "config": cfg}
     policy = SelkdPolicy(obs_dim, act_dim, hidden, metadata=meta)
     sd = {}

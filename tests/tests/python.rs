@@ -12,25 +12,6 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// The venv's interpreter, found as `selkd export --onnx` finds it: `SELKD_PYTHON`, else the
-/// venv deploy/python.sh makes (`SELKD_PYTHON_VENV`, else `python-venv` in the cache).
-fn python() -> PathBuf {
-    let p = std::env::var_os("SELKD_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            std::env::var_os("SELKD_PYTHON_VENV")
-                .map(PathBuf::from)
-                .unwrap_or_else(|| cache_dir().join("python-venv"))
-                .join("bin/python")
-        });
-    assert!(
-        p.exists(),
-        "{} is missing: run `bash deploy/python.sh` (deploy/test.sh does) before the tests",
-        p.display()
-    );
-    p
-}
-
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .parent()

@@ -208,6 +208,28 @@ fn avtd_learns_pendulum_beyond_a_random_policy() {
     assert_eq!(meta["best_actor"].as_u64(), Some(selected));
     assert_eq!(meta["actors"].as_u64(), Some(3));
     assert!(meta["score"].is_number(), "{meta}");
+    // Python's loader agrees: the run's "best" is the selected variant, the bundle's actor.
+    let check = format!(
+        "import selkd, torch\n\
+         p = selkd.load_policy({run:?})\n\
+         assert p.metadata['actor'] == {selected}, p.metadata\n\
+         assert p.metadata['score'] is not None\n\
+         other = selkd.load_policy({run:?}, actor={other})\n\
+         assert other.metadata['score'] is None\n\
+         x = torch.randn(16, 3)\n\
+         assert torch.equal(p(x), selkd.load_policy({bundle:?})(x))\n",
+        run = dir.display().to_string(),
+        bundle = bundle.display().to_string(),
+        other = (selected + 1) % 3,
+    );
+    let mut py = std::process::Command::new(python());
+    py.arg("-c").arg(check);
+    let out = run(py);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

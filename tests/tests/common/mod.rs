@@ -25,6 +25,25 @@ pub fn bin(name: &str) -> PathBuf {
     p
 }
 
+/// The venv's interpreter, found as `selkd export --onnx` finds it: `SELKD_PYTHON`, else the
+/// venv deploy/python.sh makes (`SELKD_PYTHON_VENV`, else `python-venv` in the cache).
+pub fn python() -> PathBuf {
+    let p = std::env::var_os("SELKD_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            std::env::var_os("SELKD_PYTHON_VENV")
+                .map(PathBuf::from)
+                .unwrap_or_else(|| cache_dir().join("python-venv"))
+                .join("bin/python")
+        });
+    assert!(
+        p.exists(),
+        "{} is missing: run `bash deploy/python.sh` (deploy/test.sh does) before the tests",
+        p.display()
+    );
+    p
+}
+
 /// The per-user cache the set-up scripts install into (libtorch, TensorBoard, the Python venv),
 /// computed as they compute it: `SELKD_CACHE`, else `XDG_CACHE_HOME/selkd`, else `~/.cache/selkd`.
 pub fn cache_dir() -> PathBuf {
