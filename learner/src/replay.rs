@@ -188,14 +188,14 @@ mod tests {
 
     #[test]
     fn fifo_keeps_the_newest_capacity_rows_and_splits_fields() {
-        let mut rb = ReplayBuffer::new(5, 2, 1, Device::Cpu);
+        let mut rb = ReplayBuffer::new(5, 3, 1, Device::Cpu);
         for i in 0..8 {
             let f = i as f32;
             rb.push(
-                &[f, f + 0.5],
+                &[f, f + 0.5, f + 0.25],
                 &[-f],
                 10.0 * f,
-                &[f + 1.0, f + 1.5],
+                &[f + 1.0, f + 1.5, f + 1.75],
                 i % 2 == 1,
             );
         }
@@ -204,14 +204,18 @@ mod tests {
         assert_eq!(rows, vec![3.0, 4.0, 5.0, 6.0, 7.0], "oldest evicted first");
         let mut rng = rand_pcg::Pcg64::seed_from_u64(1);
         let b = rb.sample(2, 16, &mut rng);
-        assert_eq!(b.obs.size(), vec![2, 16, 2]);
+        // Three observation entries: with two, 2·obs and obs + 2 coincide and a wrong offset of
+        // the terminated column would go unseen.
+        assert_eq!(b.obs.size(), vec![2, 16, 3]);
         for g in 0..2 {
             for k in 0..16 {
                 let s = b.obs.double_value(&[g, k, 0]);
                 assert!((3.0..=7.0).contains(&s));
                 assert_eq!(b.act.double_value(&[g, k, 0]), -s);
                 assert_eq!(b.reward.double_value(&[g, k]), 10.0 * s);
-                assert_eq!(b.next_obs.double_value(&[g, k, 1]), s + 1.5);
+                assert_eq!(b.obs.double_value(&[g, k, 2]), s + 0.25);
+                assert_eq!(b.next_obs.double_value(&[g, k, 0]), s + 1.0);
+                assert_eq!(b.next_obs.double_value(&[g, k, 2]), s + 1.75);
                 assert_eq!(b.terminated.double_value(&[g, k]), (s as i64 % 2) as f64);
             }
         }
