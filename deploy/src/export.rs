@@ -84,14 +84,7 @@ fn run_inner(args: ExportArgs) -> Result<()> {
         .with_context(|| format!("writing {}", weights.display()))?;
 
     let scores = state.ranking.scores();
-    // The ranking scores the acting actors; AVTD's only acting actor is the selected variant.
-    let score: Option<f64> = if cfg.algo.variants.is_empty() {
-        scores.get(loaded.index).copied().flatten()
-    } else {
-        (loaded.index == state.selected_variant)
-            .then(|| scores[0])
-            .flatten()
-    };
+    let score = state.score_of(loaded.index);
     let metadata = serde_json::json!({
         "format": "selkd-policy",
         "format_version": FORMAT_VERSION,

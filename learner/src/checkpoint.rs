@@ -120,6 +120,19 @@ impl TrainingState {
         }
     }
 
+    /// Actor `index`'s score by the ranking, if it has one yet. The ranking scores the acting
+    /// actors; AVTD's only acting actor is its selected variant, so only that one has a score.
+    pub fn score_of(&self, index: usize) -> Option<f64> {
+        let scores = self.ranking.scores();
+        if self.config.algo.variants.is_empty() {
+            scores.get(index).copied().flatten()
+        } else {
+            (index == self.selected_variant)
+                .then(|| scores[0])
+                .flatten()
+        }
+    }
+
     /// Each actor's rollout record; for a checkpoint without one, fresh episodes numbered far
     /// from any the run had (so their seeds are new) after the transitions received.
     pub fn rollouts(&self) -> Vec<Rollout> {

@@ -81,23 +81,19 @@ impl Ensemble {
                     // libtorch's fused layer norm, on the flagged members only.
                     let members = flags.view([-1]).nonzero().view([-1]);
                     let width = h.size()[2];
+                    let norm = |t: &Tensor| {
+                        t.layer_norm(
+                            [width],
+                            None::<Tensor>,
+                            None::<Tensor>,
+                            LAYER_NORM_EPS,
+                            false,
+                        )
+                    };
                     if members.size()[0] == h.size()[0] {
-                        h = h.layer_norm(
-                            [width],
-                            None::<Tensor>,
-                            None::<Tensor>,
-                            LAYER_NORM_EPS,
-                            false,
-                        );
+                        h = norm(&h);
                     } else if members.size()[0] > 0 {
-                        let normed = h.index_select(0, &members).layer_norm(
-                            [width],
-                            None::<Tensor>,
-                            None::<Tensor>,
-                            LAYER_NORM_EPS,
-                            false,
-                        );
-                        h = h.index_copy(0, &members, &normed);
+                        h = h.index_copy(0, &members, &norm(&h.index_select(0, &members)));
                     }
                 }
                 h = h.relu();

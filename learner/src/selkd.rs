@@ -128,8 +128,9 @@ impl Selkd {
                     .collect()
             };
             critics = critics.with_layer_norm(&of(Regulariser::LayerNorm));
-            let decayed: Vec<i64> = (0..cfg.critics as i64)
-                .filter(|&j| of(Regulariser::WeightDecay)[j as usize])
+            let decayed: Vec<i64> = (0..cfg.critics)
+                .filter(|&j| regulariser_of_critic(j) == Regulariser::WeightDecay)
+                .map(|j| j as i64)
                 .collect();
             critic_decay = (!decayed.is_empty() && cfg.weight_decay > 0.0).then(|| {
                 (
@@ -244,9 +245,7 @@ impl Selkd {
         });
         // Line 12: every critic regresses on its y (all N at once; the loss sums the N critics'
         // losses, so each critic's gradient is its own).
-        let x = Tensor::cat(&[&batch.obs, &batch.act], -1).expand([n as i64, b as i64, -1], false);
-        let q = self.critics.forward(&x).squeeze_dim(-1);
-        let per_critic = ((&q - &y).square() * 0.5).mean_dim(1, false, Kind::Float);
+        let (q, per_critic) = self.td_errors(batch, &y);
         let loss = per_critic.sum(Kind::Float);
         match self.cfg.trained_critics {
             None => {
@@ -342,8 +341,24 @@ impl Selkd {
             .collect();
         let soft_value = Tensor::stack(&owned, 0) - self.alpha().view([k, 1]) * logp2;
         let y: Tensor = reward + (1.0 - terminated) * self.cfg.gamma * soft_value; // [K, B]
+        y.index_select(0, &self.critic_owners())
+    }
+
+    /// Every critic's values on `batch`'s (s, a) (one group of rows), `[N, rows]`, and its TD error
+    /// against its target `y`, `mean_rows ½ (Q_j(s, a) − y_j)²`, `[N]`.
+    fn td_errors(&self, batch: &Batch, y: &Tensor) -> (Tensor, Tensor) {
+        let (n, rows) = (self.cfg.critics as i64, batch.obs.size()[1]);
+        let x = Tensor::cat(&[&batch.obs, &batch.act], -1).expand([n, rows, -1], false);
+        let q = self.critics.forward(&x).squeeze_dim(-1);
+        let per_critic = ((&q - y).square() * 0.5).mean_dim(1, false, Kind::Float);
+        (q, per_critic)
+    }
+
+    /// Paired critics and AVTD: which actor owns each critic (⌊j·K/N⌋), `[N]` indices.
+    fn critic_owners(&self) -> Tensor {
+        let (k, n) = (self.cfg.actors as i64, self.cfg.critics as i64);
         let owner: Vec<i64> = (0..n).map(|j| j * k / n).collect();
-        y.index_select(0, &Tensor::from_slice(&owner).to_device(self.device))
+        Tensor::from_slice(&owner).to_device(self.device)
     }
 
     /// Paired critics and AVTD: the critics actor `i` owns (DPD: N/K consecutive critics; AVTD:
@@ -377,11 +392,7 @@ impl Selkd {
         next_obs: &Tensor,
         subsets: &[i64],
     ) -> Tensor {
-        let (v, n, m) = (
-            self.cfg.actors as i64,
-            self.cfg.critics as i64,
-            self.cfg.subset as i64,
-        );
+        let (v, m) = (self.cfg.actors as i64, self.cfg.subset as i64);
         let b = next_obs.size()[1];
         let s2 = next_obs.reshape([1, b, -1]).expand([v, b, -1], false);
         let (a2, logp2) = self.next_actions(&s2);
@@ -400,8 +411,7 @@ impl Selkd {
         let soft_value = q_next - self.alpha().view([v, 1]) * logp2;
         let y: Tensor =
             reward.view([1, b]) + (1.0 - terminated.view([1, b])) * self.cfg.gamma * soft_value;
-        let owner: Vec<i64> = (0..n).map(|j| j * v / n).collect();
-        y.index_select(0, &Tensor::from_slice(&owner).to_device(self.device))
+        y.index_select(0, &self.critic_owners())
     }
 
     /// AVTD's selection: each variant's TD error on a batch of held-out validation transitions
@@ -428,12 +438,9 @@ impl Selkd {
 
     /// Each variant's validation TD error on `batch` (one group of rows) with `subsets` (V × M).
     fn validation_errors(&mut self, batch: &Batch, subsets: &[i64]) -> Vec<f64> {
-        let (v, n) = (self.cfg.actors as i64, self.cfg.critics as i64);
-        let rows = batch.obs.size()[1];
+        let v = self.cfg.actors as i64;
         let y = self.variant_target(&batch.reward, &batch.terminated, &batch.next_obs, subsets);
-        let x = Tensor::cat(&[&batch.obs, &batch.act], -1).expand([n, rows, -1], false);
-        let q = self.critics.forward(&x).squeeze_dim(-1);
-        let per_critic = ((&q - &y).square() * 0.5).mean_dim(1, false, Kind::Float);
+        let (_, per_critic) = self.td_errors(batch, &y);
         let per_variant = per_critic.view([v, -1]).mean_dim(1, false, Kind::Double);
         Vec::<f64>::try_from(per_variant.to_device(Device::Cpu)).expect("f64 errors")
     }
@@ -531,9 +538,7 @@ impl Selkd {
         let q = if self.cfg.paired_critics || self.avtd() {
             // DPD and AVTD: each actor is judged by its own critics only (the N/K consecutive
             // critics j with ⌊j·K/N⌋ = i), so each critic sees only its owner's states.
-            let owner: Vec<i64> = (0..n).map(|j| j * k / n).collect();
-            let owner = Tensor::from_slice(&owner).to_device(self.device);
-            let x = Tensor::cat(&[s, &a], -1).index_select(0, &owner);
+            let x = Tensor::cat(&[s, &a], -1).index_select(0, &self.critic_owners());
             let q_own = self.critics.detached().forward(&x).view([k, n / k, b]);
             reduce(&q_own, 1)
         } else {

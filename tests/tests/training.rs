@@ -84,18 +84,19 @@ fn selkd_learns_pendulum_well_beyond_a_random_policy() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// DNS (configs/baselines/dns.toml) through the real processes, at Pendulum's scale (N = 5
-/// critics of which k = 2 train per update, G = 3): it learns, and the checkpoint shows that
-/// every update trained exactly k critics.
-#[test]
-fn dns_learns_pendulum_beyond_a_random_policy() {
-    let dir = temp_dir("dns");
+/// Trains `configs/baselines/<config>` through the real processes at Pendulum's scale (5 000 env
+/// steps, G = 3, 64 × 64, plus `extra` overrides) and asserts that its last evaluation beats a
+/// random policy by more than 600. Returns the run directory for the method's own checks.
+fn baseline_beats_random_on_pendulum(
+    tag: &str,
+    config: &str,
+    extra: &[&str],
+) -> std::path::PathBuf {
+    let dir = temp_dir(tag);
     let sets: Vec<String> = [
         "run.env=pendulum",
         "run.total_env_steps=5000",
         "run.threads=1",
-        "algo.critics=5",
-        "algo.trained_critics=2",
         "algo.utd=3",
         "algo.hidden=[64,64]",
         "algo.batch_size=128",
@@ -104,11 +105,14 @@ fn dns_learns_pendulum_beyond_a_random_policy() {
         "eval.episodes=5",
     ]
     .iter()
+    .chain(extra)
     .flat_map(|s| ["--set".to_string(), s.to_string()])
     .collect();
     let mut c = train(&dir, &sets);
     c.arg("--config").arg(
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/baselines/dns.toml"),
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../configs/baselines")
+            .join(config),
     );
     let out = run(c);
     assert_success(&out, &dir);
@@ -117,7 +121,20 @@ fn dns_learns_pendulum_beyond_a_random_policy() {
     let random = random_policy_return(20);
     assert!(
         last > random + 600.0,
-        "DNS's final evaluation {last:.0} is not well beyond random {random:.0}"
+        "{config}'s final evaluation {last:.0} is not well beyond random {random:.0}"
+    );
+    dir
+}
+
+/// DNS (configs/baselines/dns.toml) through the real processes, at Pendulum's scale (N = 5
+/// critics of which k = 2 train per update, G = 3): it learns, and the checkpoint shows that
+/// every update trained exactly k critics.
+#[test]
+fn dns_learns_pendulum_beyond_a_random_policy() {
+    let dir = baseline_beats_random_on_pendulum(
+        "dns",
+        "dns.toml",
+        &["algo.critics=5", "algo.trained_critics=2"],
     );
     let state: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(dir.join("checkpoints/final/state.json")).unwrap(),
@@ -148,35 +165,7 @@ fn dns_learns_pendulum_beyond_a_random_policy() {
 /// variant, and the run's policy (what `selkd eval` and `selkd export` take) is the selected one.
 #[test]
 fn avtd_learns_pendulum_beyond_a_random_policy() {
-    let dir = temp_dir("avtd");
-    let sets: Vec<String> = [
-        "run.env=pendulum",
-        "run.total_env_steps=5000",
-        "run.threads=1",
-        "algo.critics=3",
-        "algo.utd=3",
-        "algo.hidden=[64,64]",
-        "algo.batch_size=128",
-        "algo.warmup_steps=1000",
-        "eval.epoch_env_steps=1000",
-        "eval.episodes=5",
-    ]
-    .iter()
-    .flat_map(|s| ["--set".to_string(), s.to_string()])
-    .collect();
-    let mut c = train(&dir, &sets);
-    c.arg("--config").arg(
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/baselines/avtd.toml"),
-    );
-    let out = run(c);
-    assert_success(&out, &dir);
-    let (h, rows) = metrics(&dir);
-    let last = *column(&h, &rows, "eval_return_0").last().unwrap();
-    let random = random_policy_return(20);
-    assert!(
-        last > random + 600.0,
-        "AVTD's final evaluation {last:.0} is not well beyond random {random:.0}"
-    );
+    let dir = baseline_beats_random_on_pendulum("avtd", "avtd.toml", &["algo.critics=3"]);
     let model = read_safetensors(&dir.join("checkpoints/final/model.safetensors"));
     assert_eq!(model["actors.0.weight"].0[0], 3, "one actor per variant");
     assert_eq!(
