@@ -1033,8 +1033,7 @@ mod tests {
         let mut rb = filled_replay(obs, act, 100);
         // Some temperatures away from 1, so that α_i visibly scales the entropy term.
         tch::no_grad(|| {
-            let _ = s
-                .log_alpha
+            s.log_alpha
                 .shallow_clone()
                 .copy_(&Tensor::from_slice(&[-0.5f32, 0.3, 0.0]));
         });
@@ -1653,8 +1652,7 @@ mod tests {
         assert_eq!((s.cfg.actors, s.cfg.critics), (2, 6));
         // Different α per variant, so that using the wrong one shows.
         tch::no_grad(|| {
-            let _ = s
-                .log_alpha
+            s.log_alpha
                 .shallow_clone()
                 .copy_(&Tensor::from_slice(&[0.0f32, -1.0]));
         });
@@ -1732,8 +1730,7 @@ mod tests {
                 }
                 let per_critic: Vec<f32> = b.iter().flat_map(|&v| [v, v]).collect();
                 let last = s.critics.layers.last().unwrap();
-                let _ = last
-                    .bias
+                last.bias
                     .shallow_clone()
                     .copy_(&Tensor::from_slice(&per_critic).view([6, 1, 1]));
             });
