@@ -1656,9 +1656,15 @@ mod tests {
                 .shallow_clone()
                 .copy_(&Tensor::from_slice(&[0.0f32, -1.0]));
         });
-        let rb = filled_replay(obs, act, 200);
-        let mut rb = rb;
-        let batch = rb.sample(1, cfg.batch_size, &mut Pcg64::seed_from_u64(9));
+        let mut rb = filled_replay(obs, act, 200);
+        // A mini-batch with terminal and non-terminal rows, so that (1 − d) is seen both ways.
+        let batch = (0..)
+            .map(|seed| rb.sample(1, cfg.batch_size, &mut Pcg64::seed_from_u64(seed)))
+            .find(|b| {
+                let d = Vec::<f32>::try_from(b.terminated.flatten(0, -1)).unwrap();
+                d.contains(&1.0) && d.contains(&0.0)
+            })
+            .unwrap();
         let subsets = [2i64, 0, 3, 5]; // variant 0: critics 2, 0; variant 1: critics 3, 5
         let mut peek = s.rng.clone();
         let b_size = cfg.batch_size;
@@ -1741,11 +1747,18 @@ mod tests {
             validation.push(&[x, -x, 0.5], &[0.1], 1.0, &[x, x, x], t % 9 == 0);
         }
         set_biases(&s, [0.0, 0.9, 3.0]);
+        s.draws = Some(Vec::new());
         assert!(
             s.select_variant(&mut validation),
             "variant 1 replaces variant 0"
         );
         assert_eq!(s.selected, 1);
+        // Drawn from 4·B validation rows.
+        let draws = s.draws.take().unwrap();
+        let Some(Draw::CriticBatch(drawn, _)) = draws.first() else {
+            panic!("the validation batch is recorded");
+        };
+        assert_eq!(drawn.obs.size(), [1, 4 * cfg.batch_size as i64, 3]);
         for (got, want) in s.validation_td.iter().zip([0.5, 0.005, 2.0]) {
             assert!((got - want).abs() < 1e-6, "{:?}", s.validation_td);
         }
@@ -1761,11 +1774,16 @@ mod tests {
         s.actor_updates = 2 * SELECT_EVERY_ROUNDS;
         assert!(s.select_variant(&mut validation));
         assert_eq!(s.selected, 2);
-        // Never from fewer validation rows than a mini-batch.
+        // Never from fewer validation rows than a mini-batch; from exactly one, yes.
         let mut few = ReplayBuffer::new(100, 3, 1, Device::Cpu);
-        few.push(&[0.0; 3], &[0.0], 0.0, &[0.0; 3], false);
+        for _ in 1..cfg.batch_size {
+            few.push(&[0.0; 3], &[0.0], 0.0, &[0.0; 3], false);
+        }
         set_biases(&s, [1.0, 0.0, 0.0]);
         assert!(!s.select_variant(&mut few));
+        few.push(&[0.0; 3], &[0.0], 0.0, &[0.0; 3], false);
+        assert!(s.select_variant(&mut few));
+        assert_eq!(s.selected, 1);
     }
 
     /// The weight-decay variant's critics get ½ c ‖W‖² added to their loss: their gradient (Adam's
