@@ -124,6 +124,12 @@ impl ProgressMeter {
         while self.history.len() > 2 && now - self.history[1].wall_s >= self.window_s {
             self.history.pop_front();
         }
+        // Warm-up steps need no updates and fly by: once updates start, the window starts there.
+        if sample.critic_updates > 0.0 {
+            while self.history.len() > 1 && self.history[0].critic_updates == 0.0 {
+                self.history.pop_front();
+            }
+        }
         let oldest = self.history[0];
         let span = now - oldest.wall_s;
         let (steps_per_s, updates_per_s) = if self.history.len() >= 2 && span > 0.0 {
@@ -141,7 +147,7 @@ impl ProgressMeter {
         } else if sample.critic_updates == 0.0 {
             // Warm-up steps need no updates and fly by; the rate after them is the learner's.
             "warm-up, ETA after it".to_string()
-        } else if steps_per_s > 0.0 {
+        } else if self.history.len() >= 2 && steps_per_s > 0.0 {
             format!("ETA {}", duration(left / steps_per_s))
         } else {
             "ETA –".to_string()
@@ -271,6 +277,22 @@ mod tests {
         m.line(&progress(1.0, 600, 10), Duration::from_secs(1));
         let line = m.line(&progress(2.0, 600, 10), Duration::from_secs(2));
         assert!(line.contains("ETA –"), "{line}");
+    }
+
+    /// Right after the warm-up the window still holds its fast steps; the ETA must not use them.
+    #[test]
+    fn the_eta_after_the_warm_up_uses_only_steps_taken_since_updates_began() {
+        let mut m = ProgressMeter::new(10.0);
+        let t = Duration::from_secs(3);
+        m.line(&progress(0.0, 0, 0), t);
+        m.line(&progress(1.0, 3000, 0), t);
+        // The first second with updates: no window after the warm-up yet, so no ETA.
+        let line = m.line(&progress(2.0, 5050, 20), t);
+        assert!(line.contains("ETA –"), "{line}");
+        // 10 env steps/s since then: (12000 − 5060) / 10 = 694 s, not the warm-up's pace.
+        let line = m.line(&progress(3.0, 5060, 40), t);
+        assert!(line.contains("(42%, ETA 11m34s)"), "{line}");
+        assert!(line.contains("| 20 updates/s | 10 env steps/s"), "{line}");
     }
 
     #[test]
