@@ -8,6 +8,10 @@ pub struct RateLimiter {
     utd: u64,
     warmup_total: u64,
     tolerance_rounds: u64,
+    /// Training starts (again) once `inserted` reaches this, with `base_rounds` rounds done
+    /// before: the warm-up's end, or a refill's after a resume without the replay buffer.
+    warmup_end: u64,
+    base_rounds: u64,
 }
 
 impl RateLimiter {
@@ -19,23 +23,45 @@ impl RateLimiter {
             utd: utd as u64,
             warmup_total,
             tolerance_rounds,
+            warmup_end: warmup_total,
+            base_rounds: 0,
         }
     }
 
+    /// A resumed run whose checkpoint held no replay buffer: no training until another warm-up's
+    /// worth of transitions (at least one) is stored after `inserted`, then G per K as before.
+    /// `rounds_done` are the rounds the checkpoint had done.
+    pub fn refill(&mut self, inserted: u64, rounds_done: u64) {
+        self.warmup_end = inserted + self.warmup_total.max(1);
+        self.base_rounds = rounds_done;
+    }
+
+    /// Whether the replay buffer holds enough to train on: the warm-up (or the refill) is over.
+    pub fn warmed_up(&self, inserted: u64) -> bool {
+        inserted >= self.warmup_end
+    }
+
+    /// `inserted` when training starts (again): the warm-up's end, or the refill's.
+    pub fn warmup_end(&self) -> u64 {
+        self.warmup_end
+    }
+
     /// Training rounds (G critic updates + one actor update each) that `inserted` transitions pay for:
-    /// one when warm-up completes, then one per K further transitions.
+    /// one when warm-up completes, then one per K further transitions (after a refill: the
+    /// checkpoint's rounds, then the same).
     pub fn rounds_due(&self, inserted: u64) -> u64 {
-        if inserted < self.warmup_total {
-            0
+        if inserted < self.warmup_end {
+            self.base_rounds
         } else {
-            (inserted - self.warmup_total) / self.actors + 1
+            self.base_rounds + (inserted - self.warmup_end) / self.actors + 1
         }
     }
 
     /// How many more transitions (all workers together) may arrive before the workers would be
     /// more than the tolerance ahead of `rounds_done`.
     pub fn insert_allowance(&self, inserted: u64, rounds_done: u64) -> u64 {
-        let limit = self.warmup_total + (rounds_done + self.tolerance_rounds) * self.actors;
+        let ahead = rounds_done.saturating_sub(self.base_rounds) + self.tolerance_rounds;
+        let limit = self.warmup_end + ahead * self.actors;
         limit.saturating_sub(inserted)
     }
 
@@ -83,5 +109,28 @@ mod tests {
         // Learner has done 3 rounds; workers have sent 100 + 2·8 transitions: 8 rounds' worth.
         assert_eq!(r.insert_allowance(116, 3), 0);
         assert_eq!(r.insert_allowance(110, 3), 6);
+    }
+
+    /// Resumed at 150 transitions with 7 rounds done and an empty replay buffer: no round is due
+    /// until 100 more are in (250), then the 8th at once and one per K = 2 after it; meanwhile
+    /// the workers may send the whole refill plus the tolerance (5 rounds of 2).
+    #[test]
+    fn a_refill_after_a_resume_trains_again_only_after_another_warm_up() {
+        let mut r = RateLimiter::new(2, 20, 100, 100.0);
+        r.refill(150, 7);
+        assert!(!r.warmed_up(249) && r.warmed_up(250));
+        assert_eq!(r.warmup_end(), 250);
+        assert_eq!(r.rounds_due(150), 7);
+        assert_eq!(r.rounds_due(249), 7);
+        assert_eq!(r.rounds_due(250), 8);
+        assert_eq!(r.rounds_due(255), 10);
+        assert_eq!(r.insert_allowance(150, 7), 110);
+        assert_eq!(r.insert_allowance(258, 8), 4);
+        // A run without warm-up still waits for one transition.
+        let mut none = RateLimiter::new(2, 20, 0, 100.0);
+        assert_eq!((none.rounds_due(0), none.warmed_up(0)), (1, true));
+        none.refill(40, 21);
+        assert_eq!((none.rounds_due(40), none.warmed_up(40)), (21, false));
+        assert_eq!(none.rounds_due(41), 22);
     }
 }

@@ -128,7 +128,7 @@ impl Learner {
                 let state = checkpoint::load(dir, &mut selkd, &mut replay, validation.as_mut())
                     .with_context(|| format!("resuming from {}", dir.display()))?;
                 if replay.is_empty() {
-                    tracing::warn!("the checkpoint holds no replay buffer: training resumes on an empty one (set run.checkpoint_replay = true to keep it)");
+                    tracing::warn!("the checkpoint holds no replay buffer: training resumes once {warmup_total} new transitions (a warm-up's worth, from the current policies) refill it (set run.checkpoint_replay = true to keep it)");
                 }
                 tracing::info!(
                     env_steps = state.inserted,
@@ -168,13 +168,18 @@ impl Learner {
         }
         let every = cfg.run.checkpoint_every;
         let inserted = resumed.as_ref().map_or(0, |s| s.inserted);
+        let mut limiter = RateLimiter::new(
+            k,
+            cfg.algo.utd,
+            warmup_total,
+            cfg.asynchronous.ratio_tolerance,
+        );
+        if resumed.is_some() && replay.is_empty() {
+            // Nothing to sample from: training waits for another warm-up's worth of data.
+            limiter.refill(inserted, selkd.actor_updates);
+        }
         Ok(Self {
-            limiter: RateLimiter::new(
-                k,
-                cfg.algo.utd,
-                warmup_total,
-                cfg.asynchronous.ratio_tolerance,
-            ),
+            limiter,
             ranking: resumed.as_ref().map_or_else(
                 || Ranking::new(k, cfg.eval.score_window),
                 |s| s.ranking.clone(),
@@ -235,10 +240,6 @@ impl Learner {
             validation,
             cfg,
         })
-    }
-
-    fn warmup_total(&self) -> u64 {
-        self.cfg.warmup_per_actor() * self.k as u64
     }
 
     fn wall(&self) -> f64 {
@@ -623,7 +624,7 @@ impl Learner {
                 self.store(p);
             }
             self.lockstep_rounds += 1;
-            if self.inserted >= self.warmup_total() {
+            if self.limiter.warmed_up(self.inserted) {
                 self.train_round()?;
                 trained = true;
                 // Hand the new weights out before the next round (the caller publishes them).
@@ -683,10 +684,9 @@ impl Learner {
         let mut budget = [0u64; MAX_ACTORS];
         match self.cfg.run.mode {
             Mode::Sync => {
-                // Warm-up steps need no weights: grant them at once; then one step per round.
-                let b = self
-                    .cfg
-                    .warmup_per_actor()
+                // Warm-up (or refill) steps need no new weights: grant them at once; then one
+                // step per round.
+                let b = (self.limiter.warmup_end() / self.k as u64)
                     .max(self.lockstep_rounds + 1)
                     .min(per_actor_cap);
                 budget[..self.k].iter_mut().for_each(|x| *x = b);

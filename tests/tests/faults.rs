@@ -168,6 +168,51 @@ fn a_run_resumes_from_its_checkpoint_with_workers_on_the_saved_weights() {
     }
 }
 
+/// A checkpoint without the replay buffer (the default): the resumed learner has nothing to
+/// sample, so it trains again only after another warm-up's worth of transitions. An async run
+/// used to crash there at once ("sample from an empty replay buffer"). K = 2, warm-up 400, G = 1:
+/// the first run's rounds are at 400, 402, …, 2000; the resumed one's at 2400, …, 3000, 301 of
+/// them (500 without the refill).
+#[test]
+fn a_run_resumed_without_its_replay_buffer_refills_it_before_training() {
+    for mode in ["sync", "async"] {
+        let (first, second) = (temp_dir("refill-a"), temp_dir("refill-b"));
+        let mode_set = format!("run.mode={mode}");
+        let sets = |steps: &str| small_run(&["algo.actors=2", &mode_set, steps]);
+        assert_success(
+            &run(train(&first, &sets("run.total_env_steps=2000"))),
+            &first,
+        );
+        let mut more = sets("run.total_env_steps=3000");
+        more.extend([
+            "--resume".to_string(),
+            first.join("checkpoints/final").display().to_string(),
+        ]);
+        assert_success(&run(train(&second, &more)), &second);
+        let learner = log(&second, "learner.log");
+        assert!(
+            learner.contains("training resumes once 400 new transitions"),
+            "{mode}: {learner}"
+        );
+        let updates = |dir| {
+            let (h, rows) = metrics(dir);
+            *column(&h, &rows, "critic_updates").last().unwrap()
+        };
+        let (before, after) = (updates(&first), updates(&second));
+        let new = after - before;
+        // Sync trains every round that is due; async trains what it has time for before the
+        // budget ends the run (the first run stopped at about 700 rounds of its 801).
+        let fewest = if mode == "sync" { 300.0 } else { 1.0 };
+        assert!(
+            (fewest..=302.0).contains(&new),
+            "{mode}: {new} critic updates after the resume ({before} → {after})"
+        );
+        for d in [first, second] {
+            let _ = std::fs::remove_dir_all(d);
+        }
+    }
+}
+
 #[test]
 fn a_worker_that_does_not_fit_the_run_is_refused_with_a_clear_error() {
     let dir = temp_dir("refuse");
