@@ -1658,13 +1658,13 @@ mod tests {
         });
         let mut rb = filled_replay(obs, act, 200);
         // A mini-batch with terminal and non-terminal rows, so that (1 − d) is seen both ways.
-        let batch = (0..)
+        let batch = (0..100)
             .map(|seed| rb.sample(1, cfg.batch_size, &mut Pcg64::seed_from_u64(seed)))
             .find(|b| {
                 let d = Vec::<f32>::try_from(b.terminated.flatten(0, -1)).unwrap();
                 d.contains(&1.0) && d.contains(&0.0)
             })
-            .unwrap();
+            .expect("a mini-batch with terminal and non-terminal rows among 100 draws");
         let subsets = [2i64, 0, 3, 5]; // variant 0: critics 2, 0; variant 1: critics 3, 5
         let mut peek = s.rng.clone();
         let b_size = cfg.batch_size;
