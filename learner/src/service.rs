@@ -127,9 +127,6 @@ impl Learner {
             Some(dir) => {
                 let state = checkpoint::load(dir, &mut selkd, &mut replay, validation.as_mut())
                     .with_context(|| format!("resuming from {}", dir.display()))?;
-                if replay.is_empty() {
-                    tracing::warn!("the checkpoint holds no replay buffer: training resumes once {warmup_total} new transitions (a warm-up's worth, from the current policies) refill it (set run.checkpoint_replay = true to keep it)");
-                }
                 tracing::info!(
                     env_steps = state.inserted,
                     version = state.weights_version,
@@ -177,6 +174,7 @@ impl Learner {
         if resumed.is_some() && replay.is_empty() {
             // Nothing to sample from: training waits for another warm-up's worth of data.
             limiter.refill(inserted, selkd.actor_updates);
+            tracing::warn!("the checkpoint holds no replay buffer: training resumes once {} new transitions (a warm-up's worth, from the current policies) refill it (set run.checkpoint_replay = true to keep it)", limiter.warmup_end() - inserted);
         }
         Ok(Self {
             limiter,
