@@ -78,7 +78,7 @@ fn main() {
         );
         let y = Tensor::randn([1, 256], (Kind::Float, Device::Cpu));
         time(
-            &format!("[{round}] critic forward+backward only"),
+            &format!("[{round}] critic forward+backward, autograd"),
             40,
             || {
                 let q = s
@@ -89,6 +89,13 @@ fn main() {
                     .mean_dim(1, false, Kind::Float)
                     .sum(Kind::Float);
                 loss.backward();
+            },
+        );
+        time(
+            &format!("[{round}] critic forward+backward, by hand"),
+            40,
+            || {
+                let _ = s.critics.regress(&x.expand([10, 256, -1], false), &y);
             },
         );
         let critics = s.critics.copy();

@@ -24,7 +24,7 @@
 use crate::config::{ActorQ, AlgoConfig, Backbone, Regulariser, Sharing};
 use crate::distillation::gaussian_kl;
 use crate::dpp;
-use crate::ensemble::Ensemble;
+use crate::ensemble::{half_mean_square, Ensemble};
 use crate::optim::Adam;
 use crate::replay::{Batch, ReplayBuffer};
 use crate::squashed_gaussian::{sample, split_head};
@@ -243,13 +243,12 @@ impl Selkd {
                 )
             }
         });
-        // Line 12: every critic regresses on its y (all N at once; the loss sums the N critics'
-        // losses, so each critic's gradient is its own).
-        let (q, per_critic) = self.td_errors(batch, &y);
+        // Line 12: every critic regresses on its y (all N at once; each critic's gradient is
+        // its own loss's).
+        let (q, per_critic) = self.critics.regress(&self.critic_inputs(batch), &y);
         let loss = per_critic.sum(Kind::Float);
         match self.cfg.trained_critics {
             None => {
-                loss.backward();
                 // AVTD's weight-decay variants: ½ c ‖W‖² over their critics' weight matrices
                 // in the loss, added as its gradient c·W (as torch.optim.Adam's weight_decay).
                 if let Some((members, c)) = &self.critic_decay {
@@ -274,13 +273,7 @@ impl Selkd {
                 .expect("f64 values");
                 let values: Vec<Vec<f64>> = flat.chunks(b).map(<[f64]>::to_vec).collect();
                 let trained = dpp::sample_k_dpp(&dpp::linear_cka(&values), k, &mut self.rng);
-                let index =
-                    Tensor::from_slice(&trained.iter().map(|&j| j as i64).collect::<Vec<_>>())
-                        .to_device(self.device);
-                per_critic
-                    .index_select(0, &index)
-                    .sum(Kind::Float)
-                    .backward();
+                // Every critic has its gradient; only the drawn ones step on it.
                 self.critic_opt
                     .step_members(&self.critics.params(), &trained, n);
             }
@@ -347,11 +340,18 @@ impl Selkd {
     /// Every critic's values on `batch`'s (s, a) (one group of rows), `[N, rows]`, and its TD error
     /// against its target `y`, `mean_rows ½ (Q_j(s, a) − y_j)²`, `[N]`.
     fn td_errors(&self, batch: &Batch, y: &Tensor) -> (Tensor, Tensor) {
-        let (n, rows) = (self.cfg.critics as i64, batch.obs.size()[1]);
-        let x = Tensor::cat(&[&batch.obs, &batch.act], -1).expand([n, rows, -1], false);
-        let q = self.critics.forward(&x).squeeze_dim(-1);
-        let per_critic = ((&q - y).square() * 0.5).mean_dim(1, false, Kind::Float);
+        let q = self
+            .critics
+            .forward(&self.critic_inputs(batch))
+            .squeeze_dim(-1);
+        let per_critic = half_mean_square(&q, y);
         (q, per_critic)
+    }
+
+    /// The critics' inputs (s, a) for `batch`'s rows (one group), `[N, rows, obs + act]`.
+    fn critic_inputs(&self, batch: &Batch) -> Tensor {
+        let (n, rows) = (self.cfg.critics as i64, batch.obs.size()[1]);
+        Tensor::cat(&[&batch.obs, &batch.act], -1).expand([n, rows, -1], false)
     }
 
     /// Paired critics and AVTD: which actor owns each critic (⌊j·K/N⌋), `[N]` indices.
