@@ -63,7 +63,7 @@ enum Command {
 
 fn main() {
     // Before anything else: it may execute selkd again (its children inherit the setting).
-    selkd_learner::passive_openmp();
+    selkd_learner::restart_with_runtime_settings();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => usage_error(e),

@@ -2,7 +2,7 @@
 //! (a profiling aid: the gap is the overhead worth attacking), and the bare batched matmuls of
 //! the critics' layer shapes: the ceiling of this CPU's libtorch for them.
 //!
-//!     THREADS=1 cargo run --release -p selkd-learner --example profile_update
+//!     THREADS=1 [K=5] cargo run --release -p selkd-learner --example profile_update
 use rand::{Rng, SeedableRng};
 use selkd_learner::config::AlgoConfig;
 use selkd_learner::replay::ReplayBuffer;
@@ -60,7 +60,10 @@ fn main() {
     }
     let mut s = Selkd::new(
         &AlgoConfig {
-            actors: 1,
+            actors: std::env::var("K")
+                .ok()
+                .and_then(|k| k.parse().ok())
+                .unwrap_or(1),
             ..cfg.clone()
         },
         obs,
@@ -69,6 +72,16 @@ fn main() {
         0,
     );
     for round in 0..3 {
+        time(
+            &format!("[{round}] whole round (G = 20 updates)"),
+            5,
+            || {
+                s.train_round(&mut replay, 0);
+            },
+        );
+        time(&format!("[{round}] actors' update"), 20, || {
+            s.update_actors(&mut replay, 0, &mut Default::default());
+        });
         time(&format!("[{round}] full critic update"), 40, || {
             s.update_critics(&mut replay);
         });
@@ -114,7 +127,10 @@ fn main() {
                 let _ = tch::no_grad(|| s.target_critics.select(&idx).forward(&x2));
             },
         );
-        let s2 = Tensor::randn([1, 256, obs as i64], (Kind::Float, Device::Cpu));
+        let s2 = Tensor::randn(
+            [s.actors.layers[0].weight.size()[0], 256, obs as i64],
+            (Kind::Float, Device::Cpu),
+        );
         time(&format!("[{round}] actor forward (target)"), 40, || {
             let _ = tch::no_grad(|| s.actors.forward(&s2));
         });

@@ -130,8 +130,9 @@ impl Ensemble {
     /// Adds to each parameter's `.grad` the gradient of a loss whose gradient with respect to
     /// the output of [`Self::forward_taped`] is `d_out` (`[E, B, out]`). By hand rather than by
     /// autograd: each layer's backward is its two matmuls, a row sum and the ReLU's mask, with no
-    /// graph to build or walk (1.6–1.8× faster per critic update at the paper's sizes). Needs
-    /// [`Self::has_hand_backward`].
+    /// graph to build or walk (at the paper's sizes about as fast as autograd on CPU, where the
+    /// matmuls dominate; what it saves is per-operation overhead, which is what bounds small
+    /// updates on a GPU). Needs [`Self::has_hand_backward`].
     pub fn backward(&self, tape: &Tape, d_out: &Tensor) {
         assert!(
             self.has_hand_backward(),

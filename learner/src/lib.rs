@@ -21,22 +21,35 @@ pub mod squashed_gaussian;
 pub mod targets;
 pub mod tensorboard;
 
-/// Makes libtorch's OpenMP threads sleep, not spin, when they wait: with the default (spinning)
-/// policy, a learner whose threads share cores with workers or another job collapses (3 updates/s
-/// against 13 at one thread, measured with another job on the machine). libgomp reads the policy
-/// once, when it is loaded, before `main`: so without `OMP_WAIT_POLICY` in the environment this sets
-/// it and executes the program again, once. A user's own setting is left alone.
-pub fn passive_openmp() {
-    if std::env::var_os("OMP_WAIT_POLICY").is_some() {
+/// Sets two things that the C libraries underneath read only once, when the process starts, then
+/// executes the program again, once; a setting already in the environment is left alone:
+/// - `OMP_WAIT_POLICY=PASSIVE`: libtorch's OpenMP threads sleep, not spin, when they wait. With
+///   the spinning default, a learner whose threads share cores with workers or another job
+///   collapses (3 updates/s against 13 at one thread, measured with another job on the machine).
+/// - `GLIBC_TUNABLES=glibc.malloc.hugetlb=1`: glibc backs the heap that holds the tensors with
+///   transparent huge pages where the kernel allows them (`madvise` mode). An update's tensors
+///   (tens of MB) outgrow what the TLB covers in 4 KiB pages; measured 8% more critic updates/s
+///   (32.3 against 29.8, one thread, four runs each, interleaved).
+pub fn restart_with_runtime_settings() {
+    let mut changed = false;
+    for (key, value) in [
+        ("OMP_WAIT_POLICY", "PASSIVE"),
+        ("GLIBC_TUNABLES", "glibc.malloc.hugetlb=1"),
+    ] {
+        if std::env::var_os(key).is_none() {
+            std::env::set_var(key, value);
+            changed = true;
+        }
+    }
+    if !changed {
         return;
     }
-    std::env::set_var("OMP_WAIT_POLICY", "PASSIVE");
     let exe = std::env::current_exe().unwrap_or_else(|_| "/proc/self/exe".into());
     let err = std::os::unix::process::CommandExt::exec(
         std::process::Command::new(exe).args(std::env::args_os().skip(1)),
     );
-    // Only reached if exec failed: go on with the spinning default.
-    eprintln!("note: could not restart with OMP_WAIT_POLICY=PASSIVE ({err}); libtorch threads spin while waiting");
+    // Only reached if exec failed: go on with the libraries' defaults.
+    eprintln!("note: could not restart with OMP_WAIT_POLICY=PASSIVE and huge pages ({err}); libtorch threads spin while waiting");
 }
 
 /// Keeps freed tensor memory in the process instead of returning it to the kernel: without this,

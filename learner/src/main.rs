@@ -33,7 +33,7 @@ struct Args {
 }
 
 fn main() {
-    selkd_learner::passive_openmp();
+    selkd_learner::restart_with_runtime_settings();
     // Colour only on a terminal: the launcher sends these logs to files.
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
