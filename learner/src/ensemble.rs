@@ -97,7 +97,8 @@ impl Ensemble {
                         h = h.index_copy(0, &members, &norm(&h.index_select(0, &members)));
                     }
                 }
-                h = h.relu();
+                // In place: `h` is a fresh result whose producer's backward does not need it.
+                let _ = h.relu_();
             }
         }
         (h, Tape { inputs })
