@@ -12,6 +12,8 @@ pub struct RateLimiter {
     /// before: the warm-up's end, or a refill's after a resume without the replay buffer.
     warmup_end: u64,
     base_rounds: u64,
+    /// Where a refill began (`inserted` at the resume); its transitions pay for no round.
+    refill_from: Option<u64>,
 }
 
 impl RateLimiter {
@@ -25,6 +27,7 @@ impl RateLimiter {
             tolerance_rounds,
             warmup_end: warmup_total,
             base_rounds: 0,
+            refill_from: None,
         }
     }
 
@@ -34,6 +37,7 @@ impl RateLimiter {
     pub fn refill(&mut self, inserted: u64, rounds_done: u64) {
         self.warmup_end = inserted + self.warmup_total.max(1);
         self.base_rounds = rounds_done;
+        self.refill_from = Some(inserted);
     }
 
     /// Whether the replay buffer holds enough to train on: the warm-up (or the refill) is over.
@@ -65,9 +69,13 @@ impl RateLimiter {
         limit.saturating_sub(inserted)
     }
 
-    /// Critic updates per inserted transition after warm-up, and the target G/K.
+    /// Critic updates per inserted transition after warm-up (a refill's transitions, like the
+    /// warm-up's, not counted), and the target G/K.
     pub fn ratio(&self, critic_updates: u64, inserted: u64) -> (f64, f64) {
-        let after = inserted.saturating_sub(self.warmup_total).max(1);
+        let refill = self
+            .refill_from
+            .map_or(0, |from| inserted.clamp(from, self.warmup_end) - from);
+        let after = inserted.saturating_sub(self.warmup_total + refill).max(1);
         (
             critic_updates as f64 / after as f64,
             self.utd as f64 / self.actors as f64,
@@ -100,6 +108,18 @@ mod tests {
         assert_eq!(r.ratio(2000, 6000), (2.0, 4.0));
         assert_eq!(r.ratio(3, 4000), (3.0, 4.0));
         assert_eq!(RateLimiter::new(2, 3, 10, 100.0).ratio(9, 16), (1.5, 1.5));
+    }
+
+    /// After a refill (resumed at 150 with warm-up 100, so transitions 150–250 refill the
+    /// buffer), the ratio leaves the refill out, as it leaves out the warm-up: at 200, 50
+    /// transitions have paid for rounds (100–150); at 300, 100 (100–150 and 250–300).
+    #[test]
+    fn the_ratio_after_a_refill_leaves_the_refill_out() {
+        let mut r = RateLimiter::new(2, 20, 100, 100.0);
+        r.refill(150, 7);
+        assert_eq!(r.ratio(140, 200), (2.8, 10.0));
+        assert_eq!(r.ratio(140, 250), (2.8, 10.0));
+        assert_eq!(r.ratio(660, 300), (6.6, 10.0));
     }
 
     #[test]
