@@ -31,17 +31,17 @@ pub mod tensorboard;
 ///   (tens of MB) outgrow what the TLB covers in 4 KiB pages; measured 8% more critic updates/s
 ///   (32.3 against 29.8, one thread, four runs each, interleaved).
 pub fn restart_with_runtime_settings() {
-    let mut changed = false;
+    let mut set = vec![];
     for (key, value) in [
         ("OMP_WAIT_POLICY", "PASSIVE"),
         ("GLIBC_TUNABLES", "glibc.malloc.hugetlb=1"),
     ] {
         if std::env::var_os(key).is_none() {
             std::env::set_var(key, value);
-            changed = true;
+            set.push(format!("{key}={value}"));
         }
     }
-    if !changed {
+    if set.is_empty() {
         return;
     }
     let exe = std::env::current_exe().unwrap_or_else(|_| "/proc/self/exe".into());
@@ -49,7 +49,10 @@ pub fn restart_with_runtime_settings() {
         std::process::Command::new(exe).args(std::env::args_os().skip(1)),
     );
     // Only reached if exec failed: go on with the libraries' defaults.
-    eprintln!("note: could not restart with OMP_WAIT_POLICY=PASSIVE and huge pages ({err}); libtorch threads spin while waiting");
+    eprintln!(
+        "note: could not restart with {} ({err}); going on with the libraries' defaults",
+        set.join(" ")
+    );
 }
 
 /// Keeps freed tensor memory in the process instead of returning it to the kernel: without this,
