@@ -2,7 +2,7 @@
 //! (a profiling aid: the gap is the overhead worth attacking), and the bare batched matmuls of
 //! the critics' layer shapes: the ceiling of this CPU's libtorch for them.
 //!
-//!     THREADS=1 [K=5] cargo run --release -p selkd-learner --example profile_update
+//!     THREADS=1 [K=5] [MATMUL=bf16] cargo run --release -p selkd-learner --example profile_update
 use rand::{Rng, SeedableRng};
 use selkd_learner::config::AlgoConfig;
 use selkd_learner::replay::ReplayBuffer;
@@ -64,6 +64,10 @@ fn main() {
                 .ok()
                 .and_then(|k| k.parse().ok())
                 .unwrap_or(1),
+            critic_matmul: match std::env::var("MATMUL").as_deref() {
+                Ok("bf16") => selkd_learner::config::Precision::Bf16,
+                _ => selkd_learner::config::Precision::Fp32,
+            },
             ..cfg.clone()
         },
         obs,

@@ -78,13 +78,21 @@ impl Ensemble {
     }
 
     /// [`Self::forward`], also returning what [`Self::backward`] needs: each layer's input.
+    ///
+    /// With bf16 matmuls the hidden activations stay bf16 from one matmul to the next (each
+    /// matmul's bf16 output gets its bias and ReLU in place), since the next matmul would round
+    /// them to bf16 anyway; a one-column output layer (a critic's Q) runs in fp32 on them, so
+    /// that Q, and with it the TD error, keeps fp32's precision.
     pub fn forward_taped(&self, x: &Tensor) -> (Tensor, Tape) {
         let last = self.layers.len() - 1;
         let mut inputs = Vec::with_capacity(self.layers.len());
-        let mut h = x.shallow_clone();
+        let mut weights = Vec::with_capacity(self.layers.len());
+        let mut h = x.to_kind(self.matmul);
         for (l, layer) in self.layers.iter().enumerate() {
-            let z = self.affine(&h, layer);
+            let w = self.matmul_weight(layer);
+            let z = self.affine(&h, layer, &w);
             inputs.push(h);
+            weights.push(w);
             h = z;
             if l < last {
                 if let Some(flags) = &self.layer_norm {
@@ -110,29 +118,38 @@ impl Ensemble {
                 let _ = h.relu_();
             }
         }
-        (h, Tape { inputs })
+        (h, Tape { inputs, weights })
     }
 
-    /// `h·W + b` for every member.
-    fn affine(&self, h: &Tensor, layer: &StackedLinear) -> Tensor {
-        if self.matmul != Kind::Float {
-            return h
-                .to_kind(self.matmul)
-                .bmm(&layer.weight.to_kind(self.matmul))
-                .to_kind(Kind::Float)
-                + &layer.bias;
+    /// The layer's weight in the matmuls' element type (itself for fp32, and for a one-column
+    /// layer, which runs in fp32).
+    fn matmul_weight(&self, layer: &StackedLinear) -> Tensor {
+        if self.matmul == Kind::Float || layer.one_column() {
+            layer.weight.shallow_clone()
+        } else {
+            layer.weight.to_kind(self.matmul)
         }
+    }
+
+    /// `h·W + b` for every member; `w` is the layer's weight from [`Self::matmul_weight`]. A
+    /// hidden layer's output is in the matmuls' element type, a one-column output in fp32.
+    fn affine(&self, h: &Tensor, layer: &StackedLinear, w: &Tensor) -> Tensor {
         if layer.one_column() {
-            return (h * layer.weight.transpose(1, 2)).sum_dim_intlist(-1, true, Kind::Float)
-                + &layer.bias;
+            // With bf16 `h`, the product promotes to fp32.
+            return (h * w.transpose(1, 2)).sum_dim_intlist(-1, true, Kind::Float) + &layer.bias;
         }
-        layer.bias.baddbmm(h, &layer.weight, 1.0, 1.0)
+        if self.matmul == Kind::Float {
+            return layer.bias.baddbmm(h, w, 1.0, 1.0);
+        }
+        let mut z = h.bmm(w);
+        let _ = z.g_add_(&layer.bias);
+        z
     }
 
-    /// Whether [`Self::backward`] can differentiate this ensemble by hand: fp32 matmuls and no
-    /// layer norm (the others go through autograd).
+    /// Whether [`Self::backward`] can differentiate this ensemble by hand: no layer norm (an
+    /// ensemble with it goes through autograd).
     pub fn has_hand_backward(&self) -> bool {
-        self.matmul == Kind::Float && self.layer_norm.is_none()
+        self.layer_norm.is_none()
     }
 
     /// Adds to each parameter's `.grad` the gradient of a loss whose gradient with respect to
@@ -154,21 +171,31 @@ impl Ensemble {
         tch::no_grad(|| {
             let mut dz = d_out.shallow_clone();
             for (l, (layer, (mut dw, mut db))) in self.layers.iter().zip(grads).enumerate().rev() {
-                let input = &tape.inputs[l];
+                let (input, w) = (&tape.inputs[l], &tape.weights[l]);
                 let _ = db.g_add_(&dz.sum_dim_intlist(1, true, Kind::Float));
                 let one_column = layer.one_column();
                 if one_column {
+                    // fp32, as in the forward (with bf16 `input`, the product promotes).
                     let _ = dw.g_add_(
                         &(input * &dz)
                             .sum_dim_intlist(1, true, Kind::Float)
                             .transpose(1, 2),
                     );
-                } else {
+                } else if self.matmul == Kind::Float {
                     let _ = dw.baddbmm_(&input.transpose(1, 2), &dz);
+                } else {
+                    // bf16 operands; their bf16 product is added onto the fp32 gradient.
+                    dz = dz.to_kind(self.matmul);
+                    let _ = dw.g_add_(&input.transpose(1, 2).bmm(&dz));
                 }
                 if l > 0 {
-                    let w_t = layer.weight.transpose(1, 2);
-                    let dh = if one_column { &dz * &w_t } else { dz.bmm(&w_t) };
+                    let w_t = w.transpose(1, 2);
+                    let dh = if one_column {
+                        // In the element type of the layer's input, which the mask below keeps.
+                        dz.to_kind(input.kind()) * w_t.to_kind(input.kind())
+                    } else {
+                        dz.bmm(&w_t)
+                    };
                     // `input` is the previous layer's ReLU output: positive exactly where its
                     // pre-activation was.
                     dz = input.threshold_backward(&dh, 0.0);
@@ -279,9 +306,11 @@ impl Ensemble {
     }
 }
 
-/// What [`Ensemble::forward_taped`] keeps for [`Ensemble::backward`]: the input of every layer.
+/// What [`Ensemble::forward_taped`] keeps for [`Ensemble::backward`]: the input of every layer,
+/// and its weight as the matmul used it (bf16 weights are converted once per forward).
 pub struct Tape {
     inputs: Vec<Tensor>,
+    weights: Vec<Tensor>,
 }
 
 /// `mean_rows ½ (q − y)²` per member of `[E, B]` values and targets, `[E]`.
@@ -451,6 +480,36 @@ mod tests {
                     "{dims:?} shared {shared}: parameter {l} off by {err} (scale {scale})"
                 );
             }
+        }
+    }
+
+    /// bf16 matmuls: the hand backward against autograd on the same bf16 forward (both round
+    /// their matmuls' operands to bf16, so they agree to bf16's precision, not fp32's).
+    #[test]
+    fn the_bf16_hand_backward_matches_autograd() {
+        let mut rng = Pcg64::seed_from_u64(13);
+        let mut ens = Ensemble::new(3, &[5, 32, 24, 1], Device::Cpu, &mut rng);
+        ens.matmul = Kind::BFloat16;
+        let x = Tensor::randn([3, 16, 5], (Kind::Float, Device::Cpu));
+        let d_out = Tensor::randn([3, 16, 1], (Kind::Float, Device::Cpu));
+        (ens.forward(&x) * &d_out).sum(Kind::Float).backward();
+        let by_autograd: Vec<Tensor> = ens.params().iter().map(|p| p.grad().copy()).collect();
+        for p in ens.params() {
+            let _ = p.grad().zero_();
+        }
+        let (out, tape) = tch::no_grad(|| ens.forward_taped(&x));
+        assert_eq!(out.kind(), Kind::Float);
+        ens.backward(&tape, &d_out);
+        for (l, (p, want)) in ens.params().iter().zip(&by_autograd).enumerate() {
+            let got = p.grad();
+            assert_eq!(got.kind(), Kind::Float);
+            let err = (&got - want).abs().max().double_value(&[]);
+            let scale = want.abs().max().double_value(&[]);
+            assert!(scale > 1e-3, "parameter {l} has no gradient to compare");
+            assert!(
+                err <= 2e-2 * scale,
+                "parameter {l} off by {err} (scale {scale})"
+            );
         }
     }
 
