@@ -1,6 +1,7 @@
 //! Stacked MLP ensembles: E networks of one shape held as weights `[E, in, out]` and biases
 //! `[E, 1, out]`, evaluated for all members at once with batched matmuls.
 
+use crate::fused;
 use rand::Rng;
 use rand_pcg::Pcg64;
 use tch::{Device, Kind, Tensor};
@@ -90,11 +91,13 @@ impl Ensemble {
         let mut h = x.to_kind(self.matmul);
         for (l, layer) in self.layers.iter().enumerate() {
             let w = self.matmul_weight(layer);
-            let z = self.affine(&h, layer, &w);
+            let hidden = l < last;
+            // The ReLU goes with the bias where no layer norm comes between them.
+            let (z, rectified) = self.affine(&h, layer, &w, hidden && self.layer_norm.is_none());
             inputs.push(h);
             weights.push(w);
             h = z;
-            if l < last {
+            if hidden {
                 if let Some(flags) = &self.layer_norm {
                     // libtorch's fused layer norm, on the flagged members only.
                     let members = flags.view([-1]).nonzero().view([-1]);
@@ -114,8 +117,10 @@ impl Ensemble {
                         h = h.index_copy(0, &members, &norm(&h.index_select(0, &members)));
                     }
                 }
-                // In place: `h` is a fresh result whose producer's backward does not need it.
-                let _ = h.relu_();
+                if !rectified {
+                    // In place: `h` is a fresh result whose producer's backward does not need it.
+                    let _ = h.relu_();
+                }
             }
         }
         (h, Tape { inputs, weights })
@@ -131,19 +136,27 @@ impl Ensemble {
         }
     }
 
-    /// `h·W + b` for every member; `w` is the layer's weight from [`Self::matmul_weight`]. A
-    /// hidden layer's output is in the matmuls' element type, a one-column output in fp32.
-    fn affine(&self, h: &Tensor, layer: &StackedLinear, w: &Tensor) -> Tensor {
+    /// `h·W + b` for every member, and with `relu` where it can, its ReLU; `w` is the layer's
+    /// weight from [`Self::matmul_weight`]. A hidden layer's output is in the matmuls' element
+    /// type, a one-column output in fp32. Returns the output and whether the ReLU was applied.
+    fn affine(&self, h: &Tensor, layer: &StackedLinear, w: &Tensor, relu: bool) -> (Tensor, bool) {
         if layer.one_column() {
+            if let Some(q) = fused::one_output(h, w, &layer.bias) {
+                return (q, false);
+            }
             // With bf16 `h`, the product promotes to fp32.
-            return (h * w.transpose(1, 2)).sum_dim_intlist(-1, true, Kind::Float) + &layer.bias;
+            let q = (h * w.transpose(1, 2)).sum_dim_intlist(-1, true, Kind::Float) + &layer.bias;
+            return (q, false);
         }
         if self.matmul == Kind::Float {
-            return layer.bias.baddbmm(h, w, 1.0, 1.0);
+            return (layer.bias.baddbmm(h, w, 1.0, 1.0), false);
         }
         let mut z = h.bmm(w);
+        if fused::bias_relu_(&z, &layer.bias, relu) {
+            return (z, relu);
+        }
         let _ = z.g_add_(&layer.bias);
-        z
+        (z, false)
     }
 
     /// Whether [`Self::backward`] can differentiate this ensemble by hand: no layer norm (an
@@ -171,10 +184,26 @@ impl Ensemble {
             .collect();
         tch::no_grad(|| {
             let mut dz = d_out.shallow_clone();
-            for (l, (layer, (mut dw, mut db))) in self.layers.iter().zip(grads).enumerate().rev() {
+            // Whether `dz`'s row sums are already in the layer's bias gradient (the fused
+            // kernels add them as they produce `dz`).
+            let mut bias_done = false;
+            for (l, layer) in self.layers.iter().enumerate().rev() {
                 let (input, w) = (&tape.inputs[l], &tape.weights[l]);
-                let _ = db.g_add_(&dz.sum_dim_intlist(1, true, Kind::Float));
+                let (dw, db) = &grads[l];
+                let (mut dw, mut db) = (dw.shallow_clone(), db.shallow_clone());
                 let one_column = layer.one_column();
+                if one_column && l > 0 {
+                    let db_below = &grads[l - 1].1;
+                    if let Some(dz_below) =
+                        fused::one_output_backward(&dz, input, w, &dw, &db, db_below)
+                    {
+                        (dz, bias_done) = (dz_below, true);
+                        continue;
+                    }
+                }
+                if !bias_done {
+                    let _ = db.g_add_(&dz.sum_dim_intlist(1, true, Kind::Float));
+                }
                 if one_column {
                     // fp32, as in the forward (with bf16 `input`, the product promotes).
                     let _ = dw.g_add_(
@@ -187,8 +216,12 @@ impl Ensemble {
                 } else {
                     // bf16 operands; their bf16 product is added onto the fp32 gradient.
                     dz = dz.to_kind(self.matmul);
-                    let _ = dw.g_add_(&input.transpose(1, 2).bmm(&dz));
+                    let product = input.transpose(1, 2).bmm(&dz);
+                    if !fused::add_bf16_(&dw, &product) {
+                        let _ = dw.g_add_(&product);
+                    }
                 }
+                bias_done = false;
                 if l > 0 {
                     let w_t = w.transpose(1, 2);
                     let dh = if one_column {
@@ -199,7 +232,11 @@ impl Ensemble {
                     };
                     // `input` is the previous layer's ReLU output: positive exactly where its
                     // pre-activation was.
-                    dz = input.threshold_backward(&dh, 0.0);
+                    if fused::relu_backward_(&dh, input, &grads[l - 1].1) {
+                        (dz, bias_done) = (dh, true);
+                    } else {
+                        dz = input.threshold_backward(&dh, 0.0);
+                    }
                 }
             }
         });

@@ -10,6 +10,7 @@ pub mod config;
 pub mod distillation;
 pub mod dpp;
 pub mod ensemble;
+pub mod fused;
 pub mod optim;
 pub mod ranking;
 pub mod rate_limit;
