@@ -87,20 +87,27 @@ fn dims3(t: &Tensor) -> Option<(usize, usize, usize)> {
     }
 }
 
-/// Runs `f` compiled for AVX2 where the CPU has it (the loops then run eight lanes wide), else
-/// as it is. Without FMA, so that every CPU rounds alike.
-#[inline(always)]
-fn vectorised<R>(f: impl FnOnce() -> R) -> R {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        #[target_feature(enable = "avx2")]
-        unsafe fn avx2<R>(f: impl FnOnce() -> R) -> R {
-            f()
+/// `vectorised! { fn name<T>(args) { body } }` defines `name`, which runs `body` compiled for
+/// AVX2 where the CPU has it (its loops then run eight lanes wide), else as it is; without FMA,
+/// so that every CPU rounds alike. (A body passed as a closure is not reliably inlined into a
+/// `#[target_feature]` function, and compiled on its own it gets no AVX2.)
+macro_rules! vectorised {
+    ($(fn $name:ident<$t:ident>($($arg:ident: $ty:ty),* $(,)?) $body:block)*) => {$(
+        fn $name<$t: Elem>($($arg: $ty),*) {
+            #[inline(always)]
+            fn body<$t: Elem>($($arg: $ty),*) $body
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx2") {
+                #[target_feature(enable = "avx2")]
+                unsafe fn avx2<$t: Elem>($($arg: $ty),*) {
+                    body::<$t>($($arg),*)
+                }
+                // SAFETY: the CPU has AVX2.
+                return unsafe { avx2::<$t>($($arg),*) };
+            }
+            body::<$t>($($arg),*)
         }
-        // SAFETY: the CPU has AVX2.
-        return unsafe { avx2(f) };
-    }
-    f()
+    )*};
 }
 
 /// `z ← relu(z + bias)` in place (the ReLU only if `relu`), rounded once to `z`'s element type.
@@ -128,7 +135,12 @@ fn bias_relu_of<T: Elem>(z: &Tensor, bias: &Tensor, relu: bool) -> bool {
     }) else {
         return false;
     };
-    vectorised(|| {
+    bias_relu_loop::<T>(z, bias, b, o, relu);
+    true
+}
+
+vectorised! {
+    fn bias_relu_loop<T>(z: &mut [T], bias: &[f32], b: usize, o: usize, relu: bool) {
         for (member, bias) in z.chunks_exact_mut(b * o).zip(bias.chunks_exact(o)) {
             for row in member.chunks_exact_mut(o) {
                 for (x, &c) in row.iter_mut().zip(bias) {
@@ -138,8 +150,7 @@ fn bias_relu_of<T: Elem>(z: &Tensor, bias: &Tensor, relu: bool) -> bool {
                 }
             }
         }
-    });
-    true
+    }
 }
 
 /// A one-output layer, `q[e, r] = Σ_k h[e, r, k] · w[e, k] + bias[e]`, in f32: `h` is
@@ -171,16 +182,18 @@ fn one_output_of<T: Elem>(h: &Tensor, w: &Tensor, bias: &Tensor) -> Option<Tenso
             elems::<f32>(&out, e * b)?,
         )
     };
-    vectorised(|| {
-        for m in 0..e {
-            let w = &w[m * k..(m + 1) * k];
-            for (r, q) in q[m * b..(m + 1) * b].iter_mut().enumerate() {
-                let row = &h[(m * b + r) * k..(m * b + r + 1) * k];
+    one_output_loop::<T>(h, w, bias, q, b, k);
+    Some(out)
+}
+
+vectorised! {
+    fn one_output_loop<T>(h: &[T], w: &[f32], bias: &[f32], q: &mut [f32], b: usize, k: usize) {
+        for (m, (q, w)) in q.chunks_exact_mut(b).zip(w.chunks_exact(k)).enumerate() {
+            for (q, row) in q.iter_mut().zip(h[m * b * k..(m + 1) * b * k].chunks_exact(k)) {
                 *q = dot(row, w) + bias[m];
             }
         }
-    });
-    Some(out)
+    }
 }
 
 /// `Σ_k x[k] · w[k]` in f32, in [`DOT_LANES`] interleaved partial sums.
@@ -258,25 +271,38 @@ fn one_output_backward_of<T: Elem>(
             elems::<T>(&out, e * b * k)?,
         )
     };
-    vectorised(|| {
-        for m in 0..e {
+    one_output_backward_loop::<T>(dq, h, w, dw, db, db_below, dz, b, k);
+    Some(out)
+}
+
+vectorised! {
+    fn one_output_backward_loop<T>(
+        dq: &[f32],
+        h: &[T],
+        w: &[f32],
+        dw: &mut [f32],
+        db: &mut [f32],
+        db_below: &mut [f32],
+        dz: &mut [T],
+        b: usize,
+        k: usize,
+    ) {
+        let members = dw.chunks_exact_mut(k).zip(db_below.chunks_exact_mut(k)).zip(w.chunks_exact(k));
+        for (m, ((dw, db_below), w)) in members.enumerate() {
             let rows = m * b..(m + 1) * b;
-            let (w, dw) = (&w[m * k..(m + 1) * k], &mut dw[m * k..(m + 1) * k]);
-            let db_below = &mut db_below[m * k..(m + 1) * k];
-            for (r, &d) in rows.clone().zip(&dq[rows]) {
+            let (h, dz) = (&h[rows.start * k..rows.end * k], &mut dz[rows.start * k..rows.end * k]);
+            for ((&d, h), dz) in dq[rows].iter().zip(h.chunks_exact(k)).zip(dz.chunks_exact_mut(k)) {
                 db[m] += d;
-                let (h, dz) = (&h[r * k..(r + 1) * k], &mut dz[r * k..(r + 1) * k]);
-                for j in 0..k {
-                    let x = h[j].load();
-                    dw[j] += x * d;
-                    let g = T::store(if x > 0.0 { d * w[j] } else { 0.0 });
-                    dz[j] = g;
-                    db_below[j] += g.load();
+                for ((((x, dz), dw), s), w) in h.iter().zip(dz).zip(dw.iter_mut()).zip(db_below.iter_mut()).zip(w) {
+                    let x = x.load();
+                    *dw += x * d;
+                    let g = T::store(if x > 0.0 { d * w } else { 0.0 });
+                    *dz = g;
+                    *s += g.load();
                 }
             }
         }
-    });
-    Some(out)
+    }
 }
 
 /// A ReLU's backward in place: `dh ← dh` where `act > 0`, else 0, `act` being the ReLU's
@@ -307,7 +333,12 @@ fn relu_backward_of<T: Elem>(dh: &Tensor, act: &Tensor, db: &Tensor) -> bool {
     ) else {
         return false;
     };
-    vectorised(|| {
+    relu_backward_loop::<T>(dh, act, db, b, k);
+    true
+}
+
+vectorised! {
+    fn relu_backward_loop<T>(dh: &mut [T], act: &[T], db: &mut [f32], b: usize, k: usize) {
         for ((dh, act), db) in dh
             .chunks_exact_mut(b * k)
             .zip(act.chunks_exact(b * k))
@@ -321,8 +352,7 @@ fn relu_backward_of<T: Elem>(dh: &Tensor, act: &Tensor, db: &Tensor) -> bool {
                 }
             }
         }
-    });
-    true
+    }
 }
 
 /// `dst += src`, an f32 tensor and a bf16 one of the same number of elements (a gradient and a
@@ -338,12 +368,16 @@ pub fn add_bf16_(dst: &Tensor, src: &Tensor) -> bool {
     }) else {
         return false;
     };
-    vectorised(|| {
-        for (d, s) in dst.iter_mut().zip(src.iter()) {
+    add_loop::<Bf16>(dst, src);
+    true
+}
+
+vectorised! {
+    fn add_loop<T>(dst: &mut [f32], src: &[T]) {
+        for (d, s) in dst.iter_mut().zip(src) {
             *d += s.load();
         }
-    });
-    true
+    }
 }
 
 #[cfg(test)]
