@@ -55,7 +55,8 @@ pub struct LearnerBench {
     /// Element type of the critics' matmuls: fp32 or bf16.
     #[arg(long, default_value = "fp32")]
     critic_matmul: String,
-    /// libtorch threads (0 = its default).
+    /// Threads, as `run.threads` (0 = one per core): the critics' members split over them,
+    /// libtorch on one each.
     #[arg(long, default_value_t = 0)]
     threads: usize,
     /// AVTD: this many variants side by side (none, layer-norm, weight-decay, then again), each
@@ -80,9 +81,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
                     b.m
                 );
             }
-            if b.threads > 0 {
-                tch::set_num_threads(b.threads as i32);
-            }
+            selkd_learner::threads::set(b.threads);
             let critic_matmul = match b.critic_matmul.as_str() {
                 "fp32" => Precision::Fp32,
                 "bf16" => Precision::Bf16,
@@ -123,7 +122,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
                 "K={} N={} M={} G={}{} batch={} obs={} act={} hidden={} {} {} on {} ({}, {} threads): {:.1} rounds/s, {gflops:.1} GFLOP/s in matmuls",
                 b.k, b.n, b.m, b.g,
                 if b.variants > 0 { format!(" V={}", b.variants) } else { String::new() }, b.batch, b.obs, b.act, b.hidden, b.sharing, b.critic_matmul, b.device,
-                selkd_learner::service::cpu_model(), tch::get_num_threads(), r.rounds_per_sec
+                selkd_learner::service::cpu_model(), selkd_learner::threads::get(), r.rounds_per_sec
             );
             println!("{:.2} updates/s", r.critic_updates_per_sec);
         }

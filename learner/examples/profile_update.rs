@@ -25,7 +25,7 @@ fn main() {
         .ok()
         .and_then(|t| t.parse().ok())
         .unwrap_or(2);
-    tch::set_num_threads(threads);
+    selkd_learner::threads::set(threads);
     // The critics' forward and backward matmuls (N = 10, B = 256, 35 inputs, 256 hidden): what
     // they reach alone.
     for (m, k, n) in [

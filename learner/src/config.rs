@@ -29,7 +29,7 @@ pub struct RunConfig {
     pub mode: Mode,
     /// `cpu` or `cuda` (or `cuda:N`), for the learner.
     pub device: String,
-    /// Threads the learner's libtorch may use (0 = libtorch's default).
+    /// Threads for the learner (0 = one per core); see `threads`.
     pub threads: usize,
     /// Write a checkpoint every this many env steps (0 = only at the end).
     pub checkpoint_every: u64,

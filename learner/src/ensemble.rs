@@ -1,7 +1,7 @@
 //! Stacked MLP ensembles: E networks of one shape held as weights `[E, in, out]` and biases
 //! `[E, 1, out]`, evaluated for all members at once with batched matmuls.
 
-use crate::fused;
+use crate::{fused, threads};
 use rand::Rng;
 use rand_pcg::Pcg64;
 use tch::{Device, Kind, Tensor};
@@ -173,15 +173,24 @@ impl Ensemble {
     /// critic forward and backward on a Xeon with AMX; on a GPU what it saves is per-operation
     /// overhead, which is what bounds small updates there). Needs [`Self::has_hand_backward`].
     pub fn backward(&self, tape: &Tape, d_out: &Tensor) {
+        self.backward_into(tape, d_out, &self.grads());
+    }
+
+    /// Each layer's (weight, bias) gradient tensors, created as zeros where none exists yet.
+    fn grads(&self) -> Vec<(Tensor, Tensor)> {
+        self.layers
+            .iter()
+            .map(|l| (grad_of(&l.weight), grad_of(&l.bias)))
+            .collect()
+    }
+
+    /// [`Self::backward`], adding onto the given gradient tensors (`grads`, one (weight, bias)
+    /// pair per layer, shaped as the parameters).
+    fn backward_into(&self, tape: &Tape, d_out: &Tensor, grads: &[(Tensor, Tensor)]) {
         assert!(
             self.has_hand_backward(),
             "no hand backward for this ensemble"
         );
-        let grads: Vec<(Tensor, Tensor)> = self
-            .layers
-            .iter()
-            .map(|l| (grad_of(&l.weight), grad_of(&l.bias)))
-            .collect();
         tch::no_grad(|| {
             let mut dz = d_out.shallow_clone();
             // Whether `dz`'s row sums are already in the layer's bias gradient (the fused
@@ -253,14 +262,61 @@ impl Ensemble {
             loss.sum(Kind::Float).backward();
             return (q.detach(), loss.detach());
         }
-        let (q, tape) = tch::no_grad(|| self.forward_taped(x));
-        let q = q.squeeze_dim(-1);
-        let rows = q.size()[1] as f64;
-        // d/dq of Σ_e mean_rows ½ (q − y)²: member e's own loss alone reaches its weights.
-        let d_q = tch::no_grad(|| (&q - y) / rows).unsqueeze(-1);
-        self.backward(&tape, &d_q);
-        let loss = tch::no_grad(|| half_mean_square(&q, y));
-        (q, loss)
+        // The members split over the learner's threads (see `threads`).
+        let members = self.layers[0].weight.size()[0] as usize;
+        let on_cpu = x.device() == Device::Cpu;
+        let parts = if on_cpu {
+            threads::member_parts(members)
+        } else {
+            vec![(0, members)]
+        };
+        self.regress_in_parts(x, y, &parts)
+    }
+
+    /// [`Self::regress`] by hand, the members in `parts` (`(start, len)`, covering them all in
+    /// order) each regressing on its own thread on its own rows, adding into its own slice of
+    /// the gradients.
+    fn regress_in_parts(
+        &self,
+        x: &Tensor,
+        y: &Tensor,
+        parts: &[(usize, usize)],
+    ) -> (Tensor, Tensor) {
+        let grads = self.grads();
+        let parts: Vec<(Ensemble, Tensor, Tensor, Vec<(Tensor, Tensor)>)> = parts
+            .iter()
+            .map(|&(start, len)| {
+                let (start, len) = (start as i64, len as i64);
+                let part = |t: &Tensor| t.detach().narrow(0, start, len);
+                // Inputs and targets of one row for every member are broadcast, not split.
+                let rows = |t: &Tensor| {
+                    if t.size()[0] == 1 {
+                        t.shallow_clone()
+                    } else {
+                        part(t)
+                    }
+                };
+                let grads = grads.iter().map(|(w, b)| (part(w), part(b))).collect();
+                (self.map(part), rows(x), rows(y), grads)
+            })
+            .collect();
+        let results = threads::run_parts(parts, |(part, x, y, grads)| {
+            tch::no_grad(|| {
+                let (q, tape) = part.forward_taped(&x);
+                let q = q.squeeze_dim(-1);
+                let rows = q.size()[1] as f64;
+                // d/dq of Σ_e mean_rows ½ (q − y)²: member e's own loss alone reaches its weights.
+                let d_q = ((&q - &y) / rows).unsqueeze(-1);
+                part.backward_into(&tape, &d_q, &grads);
+                let loss = half_mean_square(&q, &y);
+                (q, loss)
+            })
+        });
+        let (q, loss): (Vec<Tensor>, Vec<Tensor>) = results.into_iter().unzip();
+        if q.len() == 1 {
+            return (q[0].shallow_clone(), loss[0].shallow_clone());
+        }
+        (Tensor::cat(&q, 0), Tensor::cat(&loss, 0))
     }
 
     /// The same members with gradients cut (for a loss that must not train this ensemble).
@@ -586,6 +642,58 @@ mod tests {
                 .backward();
             for (g, p) in grads.iter().zip(ens.params()) {
                 assert!(g.allclose(&p.grad(), 1e-5, 1e-6, false));
+            }
+        }
+    }
+
+    /// The members split over threads give what one thread gives: outputs, losses and every
+    /// gradient, fp32 and bf16, with inputs and targets shared by every member or each member's own.
+    #[test]
+    fn regress_split_over_threads_matches_one_thread() {
+        for (matmul, shared) in [
+            (Kind::Float, true),
+            (Kind::Float, false),
+            (Kind::BFloat16, true),
+        ] {
+            let mut rng = Pcg64::seed_from_u64(21);
+            let mut ens = Ensemble::new(5, &[6, 32, 32, 1], Device::Cpu, &mut rng);
+            ens.matmul = matmul;
+            // Shared: one batch expanded to every member (as the critics get it) and one target
+            // row broadcast to all (as `per-update` sharing gives it).
+            let rows = if shared { 1 } else { 5 };
+            let x =
+                Tensor::randn([rows, 20, 6], (Kind::Float, Device::Cpu)).expand([5, 20, 6], false);
+            let y = Tensor::randn([rows, 20], (Kind::Float, Device::Cpu));
+            let mut answers = vec![];
+            for parts in [vec![(0, 5)], vec![(0, 2), (2, 1), (3, 2)]] {
+                for p in ens.params() {
+                    if p.grad().defined() {
+                        let _ = p.grad().zero_();
+                    }
+                }
+                let (q, loss) = ens.regress_in_parts(&x, &y, &parts);
+                let grads: Vec<Tensor> = ens.params().iter().map(|p| p.grad().copy()).collect();
+                answers.push((q, loss, grads));
+            }
+            let ((q1, l1, g1), (q3, l3, g3)) = (&answers[0], &answers[1]);
+            assert_eq!(q3.size(), [5, 20]);
+            assert!(
+                q1.allclose(q3, 1e-6, 1e-6, false),
+                "{matmul:?}: outputs differ"
+            );
+            assert!(
+                l1.allclose(l3, 1e-6, 1e-6, false),
+                "{matmul:?}: losses differ"
+            );
+            for (l, (a, b)) in g1.iter().zip(g3).enumerate() {
+                assert!(
+                    a.abs().max().double_value(&[]) > 1e-4,
+                    "parameter {l}: no gradient"
+                );
+                assert!(
+                    a.allclose(b, 1e-5, 1e-6, false),
+                    "{matmul:?}: parameter {l} differs"
+                );
             }
         }
     }

@@ -21,6 +21,7 @@ pub mod service;
 pub mod squashed_gaussian;
 pub mod targets;
 pub mod tensorboard;
+pub mod threads;
 
 /// Sets two things that the C libraries underneath read only once, when the process starts, then
 /// executes the program again, once; a setting already in the environment is left alone:

@@ -103,9 +103,7 @@ impl Learner {
     pub fn new(cfg: Config, run_dir: &Path, resume: Option<&Path>) -> Result<Self> {
         let spec = cfg.env_spec()?;
         let device = parse_device(&cfg.run.device)?;
-        if cfg.run.threads > 0 {
-            tch::set_num_threads(cfg.run.threads as i32);
-        }
+        crate::threads::set(cfg.run.threads);
         let k = cfg.algo.actors;
         if k > MAX_ACTORS || cfg.algo.hidden.len() > MAX_HIDDEN_LAYERS {
             bail!("this build supports at most {MAX_ACTORS} actors and {MAX_HIDDEN_LAYERS} hidden layers");

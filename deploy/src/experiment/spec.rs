@@ -366,7 +366,7 @@ pub fn prepare(
         }
     }
     // Split the cores over the runs that will train at once, so J runs never ask for more
-    // libtorch threads than there are cores: oversubscribed, a run's update rate collapsed to
+    // learner threads than there are cores: oversubscribed, a run's update rate collapsed to
     // 3–8 updates/s, against 65–75 with one thread each.
     let at_once = ids
         .iter()

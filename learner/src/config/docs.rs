@@ -8,7 +8,7 @@ pub const KEY_DOCS: &[(&str, &str)] = &[
     ("run.total_env_steps", "budget: transitions of all actors together (K = 5 at 300000 is 60000 per actor)"),
     ("run.mode", "sync: Algorithm 1's lockstep rounds, reproducible on CPU; async: workers step freely, the learner holds G updates per K transitions"),
     ("run.device", "the learner's device: cpu, cuda or cuda:N"),
-    ("run.threads", "libtorch threads for the learner (0 = libtorch's default)"),
+    ("run.threads", "threads for the learner (0 = one per core): its critics' members split over them, libtorch on one each"),
     ("run.checkpoint_every", "env steps between checkpoints (0 = only the final one)"),
     ("run.checkpoint_replay", "also store the replay buffer, so a resumed run trains on the data it had"),
     ("run.keep_checkpoints", "periodic checkpoints kept, the newest (final is always kept)"),

@@ -1,0 +1,134 @@
+//! How the learner uses a CPU's cores: the critics' members split over threads of its own, each
+//! running libtorch on one thread, rather than libtorch's threads inside every operation.
+//!
+//! An update is hundreds of small operations; with libtorch's threads each one is a parallel
+//! region whose threads must be woken (OpenMP's passive wait, which keeps a loaded machine from
+//! collapsing) or spin (which collapses it: 49–80 updates/s at two threads with another process
+//! holding a core, against 87–193 passive). Splitting the critics' members instead costs one
+//! wake-up per update and leaves each thread a long, independent run of work; a thread that
+//! shares its core with another process slows its own half only.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{mpsc, Mutex};
+
+static THREADS: AtomicUsize = AtomicUsize::new(1);
+
+/// Uses `n` threads (0: one per core): libtorch on one thread, and up to `n` threads of our own
+/// for the parts of an update that split by ensemble member.
+pub fn set(n: usize) {
+    let n = if n == 0 { cores() } else { n };
+    THREADS.store(n, Ordering::Relaxed);
+    tch::set_num_threads(1);
+}
+
+/// The cores this process may run on.
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// The threads [`set`] asked for.
+pub fn get() -> usize {
+    THREADS.load(Ordering::Relaxed)
+}
+
+/// `members` split into at most [`get`] contiguous parts of near-equal size, each `(start, len)`.
+pub fn member_parts(members: usize) -> Vec<(usize, usize)> {
+    split(members, get())
+}
+
+fn split(members: usize, parts: usize) -> Vec<(usize, usize)> {
+    let parts = parts.min(members).max(1);
+    (0..parts)
+        .map(|p| {
+            let start = p * members / parts;
+            (start, (p + 1) * members / parts - start)
+        })
+        .collect()
+}
+
+/// Runs `job` on each item, the first on this thread and the others on the learner's worker
+/// threads (started once and kept: a thread started per call would also start libtorch's and
+/// oneDNN's per-thread state afresh each time), and returns the results in order. A panic in a
+/// job is raised here.
+pub fn run_parts<J, R>(jobs: Vec<J>, job: fn(J) -> R) -> Vec<R>
+where
+    J: Send + 'static,
+    R: Send + 'static,
+{
+    let mut jobs = jobs.into_iter();
+    let Some(first) = jobs.next() else {
+        return vec![];
+    };
+    let (done, results) = mpsc::channel();
+    let mut sent = 0;
+    {
+        let mut workers = WORKERS.lock().unwrap_or_else(|e| e.into_inner());
+        for (i, j) in jobs.enumerate() {
+            if workers.len() <= i {
+                workers.push(Worker::start());
+            }
+            let done = done.clone();
+            let task: Task = Box::new(move || {
+                let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| job(j)));
+                let _ = done.send((i, r));
+            });
+            workers[i]
+                .tasks
+                .send(task)
+                .expect("learner worker thread gone");
+            sent += 1;
+        }
+    }
+    let first = job(first);
+    let mut others: Vec<Option<R>> = (0..sent).map(|_| None).collect();
+    for _ in 0..sent {
+        let (i, r) = results.recv().expect("learner worker thread gone");
+        match r {
+            Ok(r) => others[i] = Some(r),
+            Err(panic) => std::panic::resume_unwind(panic),
+        }
+    }
+    std::iter::once(first)
+        .chain(others.into_iter().map(|r| r.expect("every part answered")))
+        .collect()
+}
+
+type Task = Box<dyn FnOnce() + Send>;
+
+/// A thread that runs the tasks it is sent, one after another, with autograd off.
+struct Worker {
+    tasks: mpsc::Sender<Task>,
+}
+
+impl Worker {
+    fn start() -> Self {
+        let (tasks, inbox) = mpsc::channel::<Task>();
+        std::thread::Builder::new()
+            .name("selkd-learner-part".into())
+            .spawn(move || {
+                let _no_grad = tch::no_grad_guard();
+                for task in inbox {
+                    task();
+                }
+            })
+            .expect("could not start a learner thread");
+        Self { tasks }
+    }
+}
+
+static WORKERS: Mutex<Vec<Worker>> = Mutex::new(Vec::new());
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parts_cover_the_members_once_in_order() {
+        assert_eq!(split(10, 3), vec![(0, 3), (3, 3), (6, 4)]);
+        assert_eq!(split(2, 3), vec![(0, 1), (1, 1)]);
+        assert_eq!(split(10, 1), vec![(0, 10)]);
+        assert_eq!(split(10, 0), vec![(0, 10)]);
+        let squares = run_parts(vec![1, 2, 3, 4], |x: i32| x * x);
+        assert_eq!(squares, vec![1, 4, 9, 16]);
+    }
+}
