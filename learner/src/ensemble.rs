@@ -173,7 +173,7 @@ impl Ensemble {
     /// critic forward and backward on a Xeon with AMX; on a GPU what it saves is per-operation
     /// overhead, which is what bounds small updates there). Needs [`Self::has_hand_backward`].
     pub fn backward(&self, tape: &Tape, d_out: &Tensor) {
-        self.backward_into(tape, d_out, &self.grads());
+        self.backward_into(tape, d_out, Some(&self.grads()), false);
     }
 
     /// Each layer's (weight, bias) gradient tensors, created as zeros where none exists yet.
@@ -185,26 +185,54 @@ impl Ensemble {
     }
 
     /// [`Self::backward`], adding onto the given gradient tensors (`grads`, one (weight, bias)
-    /// pair per layer, shaped as the parameters).
-    fn backward_into(&self, tape: &Tape, d_out: &Tensor, grads: &[(Tensor, Tensor)]) {
+    /// pair per layer, shaped as the parameters), or with `None` leaving the parameters'
+    /// gradients alone; with `input`, also returns the gradient at the ensemble's input.
+    fn backward_into(
+        &self,
+        tape: &Tape,
+        d_out: &Tensor,
+        grads: Option<&[(Tensor, Tensor)]>,
+        input: bool,
+    ) -> Option<Tensor> {
         assert!(
             self.has_hand_backward(),
             "no hand backward for this ensemble"
         );
+        let train = grads.is_some();
+        // Without parameter gradients the fused kernels still add their bias sums (and a
+        // one-column layer's weight gradient) somewhere: small scratch tensors.
+        let scratch: Vec<(Tensor, Tensor)> = if train {
+            vec![]
+        } else {
+            tch::no_grad(|| {
+                self.layers
+                    .iter()
+                    .map(|l| {
+                        let dw = if l.one_column() {
+                            l.weight.zeros_like()
+                        } else {
+                            Tensor::new()
+                        };
+                        (dw, l.bias.zeros_like())
+                    })
+                    .collect()
+            })
+        };
+        let grads = grads.unwrap_or(&scratch);
         tch::no_grad(|| {
             let mut dz = d_out.shallow_clone();
             // Whether `dz`'s row sums are already in the layer's bias gradient (the fused
             // kernels add them as they produce `dz`).
             let mut bias_done = false;
             for (l, layer) in self.layers.iter().enumerate().rev() {
-                let (input, w) = (&tape.inputs[l], &tape.weights[l]);
+                let (input_l, w) = (&tape.inputs[l], &tape.weights[l]);
                 let (dw, db) = &grads[l];
                 let (mut dw, mut db) = (dw.shallow_clone(), db.shallow_clone());
                 let one_column = layer.one_column();
                 if one_column && l > 0 {
                     let db_below = &grads[l - 1].1;
                     if let Some(dz_below) =
-                        fused::one_output_backward(&dz, input, w, &dw, &db, db_below)
+                        fused::one_output_backward(&dz, input_l, w, &dw, &db, db_below)
                     {
                         (dz, bias_done) = (dz_below, true);
                         continue;
@@ -213,42 +241,77 @@ impl Ensemble {
                 if !bias_done {
                     let _ = db.g_add_(&dz.sum_dim_intlist(1, true, Kind::Float));
                 }
+                if !one_column {
+                    // bf16 operands (a no-op for fp32, and for a `dz` already bf16).
+                    dz = dz.to_kind(self.matmul);
+                }
                 if one_column {
-                    // fp32, as in the forward (with bf16 `input`, the product promotes).
+                    // fp32, as in the forward (with bf16 `input_l`, the product promotes).
                     let _ = dw.g_add_(
-                        &(input * &dz)
+                        &(input_l * &dz)
                             .sum_dim_intlist(1, true, Kind::Float)
                             .transpose(1, 2),
                     );
+                } else if !train {
                 } else if self.matmul == Kind::Float {
-                    let _ = dw.baddbmm_(&input.transpose(1, 2), &dz);
+                    let _ = dw.baddbmm_(&input_l.transpose(1, 2), &dz);
                 } else {
-                    // bf16 operands; their bf16 product is added onto the fp32 gradient.
-                    dz = dz.to_kind(self.matmul);
-                    let product = input.transpose(1, 2).bmm(&dz);
+                    // The bf16 product is added onto the fp32 gradient.
+                    let product = input_l.transpose(1, 2).bmm(&dz);
                     if !fused::add_bf16_(&dw, &product) {
                         let _ = dw.g_add_(&product);
                     }
                 }
                 bias_done = false;
-                if l > 0 {
+                if l > 0 || input {
                     let w_t = w.transpose(1, 2);
                     let dh = if one_column {
                         // In the element type of the layer's input, which the mask below keeps.
-                        dz.to_kind(input.kind()) * w_t.to_kind(input.kind())
+                        dz.to_kind(input_l.kind()) * w_t.to_kind(input_l.kind())
                     } else {
                         dz.bmm(&w_t)
                     };
-                    // `input` is the previous layer's ReLU output: positive exactly where its
+                    if l == 0 {
+                        return Some(dh.to_kind(Kind::Float));
+                    }
+                    // `input_l` is the previous layer's ReLU output: positive exactly where its
                     // pre-activation was.
-                    if fused::relu_backward_(&dh, input, &grads[l - 1].1) {
+                    if fused::relu_backward_(&dh, input_l, &grads[l - 1].1) {
                         (dz, bias_done) = (dh, true);
                     } else {
-                        dz = input.threshold_backward(&dh, 0.0);
+                        dz = input_l.threshold_backward(&dh, 0.0);
                     }
                 }
             }
+            None
+        })
+    }
+
+    /// The outputs on `x` (`[E, R, in]`) of members held fixed: no gradient reaches their
+    /// parameters, but autograd reaches `x` (critics judging an actor's actions). By hand where
+    /// [`Self::has_hand_backward`] and the output is one column (each output row depends on its
+    /// own input row only, so one backward of ones gives every row's ∂q/∂x, and
+    /// `q + Σ (x − x̄)·∂q/∂x`, with x̄ = x held constant, has q's value and that gradient);
+    /// through autograd otherwise.
+    pub fn forward_fixed(&self, x: &Tensor) -> Tensor {
+        if !self.has_hand_backward() || !self.layers.last().is_some_and(|l| l.one_column()) {
+            return self.detached().forward(x);
+        }
+        let members = self.layers[0].weight.size()[0] as usize;
+        let parts = if x.device() == Device::Cpu {
+            threads::member_parts(members)
+        } else {
+            vec![(0, members)]
+        };
+        let results = threads::run_parts(self.split(&parts, &[&x.detach()]), |(part, x)| {
+            tch::no_grad(|| {
+                let (q, tape) = part.forward_taped(&x[0]);
+                let dq_dx = part.backward_into(&tape, &q.ones_like(), None, true);
+                (q, dq_dx.expect("the input's gradient"))
+            })
         });
+        let (q, dq_dx) = cat_parts(results);
+        q + ((x - x.detach()) * dq_dx).sum_dim_intlist(-1, true, Kind::Float)
     }
 
     /// Every member's regression loss against its own targets `y` (`[E, B]`),
@@ -282,41 +345,50 @@ impl Ensemble {
         y: &Tensor,
         parts: &[(usize, usize)],
     ) -> (Tensor, Tensor) {
+        let mut tensors = vec![x, y];
         let grads = self.grads();
-        let parts: Vec<(Ensemble, Tensor, Tensor, Vec<(Tensor, Tensor)>)> = parts
-            .iter()
-            .map(|&(start, len)| {
-                let (start, len) = (start as i64, len as i64);
-                let part = |t: &Tensor| t.detach().narrow(0, start, len);
-                // Inputs and targets of one row for every member are broadcast, not split.
-                let rows = |t: &Tensor| {
-                    if t.size()[0] == 1 {
-                        t.shallow_clone()
-                    } else {
-                        part(t)
-                    }
-                };
-                let grads = grads.iter().map(|(w, b)| (part(w), part(b))).collect();
-                (self.map(part), rows(x), rows(y), grads)
-            })
-            .collect();
-        let results = threads::run_parts(parts, |(part, x, y, grads)| {
+        tensors.extend(grads.iter().flat_map(|(w, b)| [w, b]));
+        let results = threads::run_parts(self.split(parts, &tensors), |(part, t)| {
             tch::no_grad(|| {
-                let (q, tape) = part.forward_taped(&x);
+                let (x, y) = (&t[0], &t[1]);
+                let grads: Vec<(Tensor, Tensor)> = t[2..]
+                    .chunks(2)
+                    .map(|wb| (wb[0].shallow_clone(), wb[1].shallow_clone()))
+                    .collect();
+                let (q, tape) = part.forward_taped(x);
                 let q = q.squeeze_dim(-1);
                 let rows = q.size()[1] as f64;
                 // d/dq of Σ_e mean_rows ½ (q − y)²: member e's own loss alone reaches its weights.
-                let d_q = ((&q - &y) / rows).unsqueeze(-1);
-                part.backward_into(&tape, &d_q, &grads);
-                let loss = half_mean_square(&q, &y);
+                let d_q = ((&q - y) / rows).unsqueeze(-1);
+                part.backward_into(&tape, &d_q, Some(&grads), false);
+                let loss = half_mean_square(&q, y);
                 (q, loss)
             })
         });
-        let (q, loss): (Vec<Tensor>, Vec<Tensor>) = results.into_iter().unzip();
-        if q.len() == 1 {
-            return (q[0].shallow_clone(), loss[0].shallow_clone());
-        }
-        (Tensor::cat(&q, 0), Tensor::cat(&loss, 0))
+        cat_parts(results)
+    }
+
+    /// For each part (`(start, len)` of the members), the sub-ensemble of those members (no
+    /// gradient) and each of `tensors` narrowed to them; a tensor one member wide is meant for
+    /// every member (broadcast) and goes to every part whole.
+    fn split(&self, parts: &[(usize, usize)], tensors: &[&Tensor]) -> Vec<(Ensemble, Vec<Tensor>)> {
+        parts
+            .iter()
+            .map(|&(start, len)| {
+                let part = |t: &Tensor| t.detach().narrow(0, start as i64, len as i64);
+                let narrowed = tensors
+                    .iter()
+                    .map(|t| {
+                        if t.size()[0] == 1 {
+                            t.shallow_clone()
+                        } else {
+                            part(t)
+                        }
+                    })
+                    .collect();
+                (self.map(part), narrowed)
+            })
+            .collect()
     }
 
     /// The same members with gradients cut (for a loss that must not train this ensemble).
@@ -398,6 +470,15 @@ impl Ensemble {
             }
         });
     }
+}
+
+/// Two results per part of the members, each joined along the members.
+fn cat_parts(results: Vec<(Tensor, Tensor)>) -> (Tensor, Tensor) {
+    let (a, b): (Vec<Tensor>, Vec<Tensor>) = results.into_iter().unzip();
+    if a.len() == 1 {
+        return (a[0].shallow_clone(), b[0].shallow_clone());
+    }
+    (Tensor::cat(&a, 0), Tensor::cat(&b, 0))
 }
 
 /// What [`Ensemble::forward_taped`] keeps for [`Ensemble::backward`]: the input of every layer,
@@ -694,6 +775,55 @@ mod tests {
                     a.allclose(b, 1e-5, 1e-6, false),
                     "{matmul:?}: parameter {l} differs"
                 );
+            }
+        }
+    }
+
+    /// `forward_fixed` against autograd through the detached members: the same values, the same
+    /// gradient at the input (here through a function of it, as an actor's action reaches the
+    /// critics), and none at the members' parameters; fp32 and bf16, one part and three.
+    #[test]
+    fn forward_fixed_is_differentiable_in_the_input_only() {
+        for (matmul, parts) in [
+            (Kind::Float, 1),
+            (Kind::Float, 3),
+            (Kind::BFloat16, 1),
+            (Kind::BFloat16, 3),
+        ] {
+            let mut rng = Pcg64::seed_from_u64(31);
+            let mut ens = Ensemble::new(5, &[6, 32, 32, 1], Device::Cpu, &mut rng);
+            ens.matmul = matmul;
+            let source =
+                Tensor::randn([1, 20, 6], (Kind::Float, Device::Cpu)).set_requires_grad(true);
+            let d_out = Tensor::randn([5, 20, 1], (Kind::Float, Device::Cpu));
+            let x = || (&source * 1.5).tanh().expand([5, 20, 6], false);
+            let want = ens.detached().forward(&x());
+            (&want * &d_out).sum(Kind::Float).backward();
+            let want_grad = source.grad().copy();
+            let _ = source.grad().zero_();
+            let got = if parts == 1 {
+                ens.forward_fixed(&x())
+            } else {
+                crate::threads::with_parts(parts, || ens.forward_fixed(&x()))
+            };
+            (&got * &d_out).sum(Kind::Float).backward();
+            let got_grad = source.grad();
+            let tol = if matmul == Kind::Float { 1e-5 } else { 2e-2 };
+            let scale = want.abs().max().double_value(&[]);
+            let err = (&got - &want).abs().max().double_value(&[]);
+            assert!(
+                err <= tol * scale,
+                "{matmul:?} {parts}: values off by {err}"
+            );
+            let scale = want_grad.abs().max().double_value(&[]);
+            let err = (&got_grad - &want_grad).abs().max().double_value(&[]);
+            assert!(scale > 1e-3);
+            assert!(
+                err <= tol * scale,
+                "{matmul:?} {parts}: input gradient off by {err} (scale {scale})"
+            );
+            for p in ens.params() {
+                assert!(!p.grad().defined(), "a parameter got a gradient");
             }
         }
     }

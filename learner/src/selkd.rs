@@ -539,13 +539,13 @@ impl Selkd {
             // DPD and AVTD: each actor is judged by its own critics only (the N/K consecutive
             // critics j with ⌊j·K/N⌋ = i), so each critic sees only its owner's states.
             let x = Tensor::cat(&[s, &a], -1).index_select(0, &self.critic_owners());
-            let q_own = self.critics.detached().forward(&x).view([k, n / k, b]);
+            let q_own = self.critics.forward_fixed(&x).view([k, n / k, b]);
             reduce(&q_own, 1)
         } else {
             let x = Tensor::cat(&[s, &a], -1)
                 .reshape([1, k * b, -1])
                 .expand([n, k * b, -1], false);
-            reduce(&self.critics.detached().forward(&x).view([n, k, b]), 0)
+            reduce(&self.critics.forward_fixed(&x).view([n, k, b]), 0)
         };
         // Line 18: distillation toward the best actor, held fixed, on actor i's own states.
         // The reference each actor distils toward: the best actor (SELKD), or with paired critics

@@ -33,7 +33,21 @@ pub fn get() -> usize {
 
 /// `members` split into at most [`get`] contiguous parts of near-equal size, each `(start, len)`.
 pub fn member_parts(members: usize) -> Vec<(usize, usize)> {
-    split(members, get())
+    split(members, PARTS.with(|p| p.get()).unwrap_or_else(get))
+}
+
+thread_local! {
+    /// A test's own number of parts, for this thread only (tests run side by side).
+    static PARTS: std::cell::Cell<Option<usize>> = const { std::cell::Cell::new(None) };
+}
+
+/// Runs `f` with the members split in `parts` parts on this thread.
+#[cfg(test)]
+pub(crate) fn with_parts<R>(parts: usize, f: impl FnOnce() -> R) -> R {
+    PARTS.with(|p| p.set(Some(parts)));
+    let r = f();
+    PARTS.with(|p| p.set(None));
+    r
 }
 
 fn split(members: usize, parts: usize) -> Vec<(usize, usize)> {
