@@ -70,7 +70,7 @@ fn untracked(inputs: &[&Tensor]) -> bool {
 
 /// Whether autograd records operations on this thread now (tch has no query for it: setting
 /// the mode returns the one before, which is put back at once).
-fn grad_mode() -> bool {
+pub fn grad_mode() -> bool {
     // SAFETY: plain calls into libtorch's thread-local grad mode, which is left as it was.
     unsafe {
         let before = torch_sys::at_grad_set_enabled(0);
