@@ -482,12 +482,29 @@ impl Ensemble {
     }
 
     /// `self ← ρ·self + (1 − ρ)·online`, member by member (Polyak averaging).
+    /// On CPU, split by members over the learner's threads.
     pub fn polyak_toward(&mut self, online: &Ensemble, rho: f64) {
-        tch::no_grad(|| {
-            for (t, o) in self.params().into_iter().zip(online.params()) {
-                let mut t = t.shallow_clone();
-                let _ = t.lerp_(o, 1.0 - rho);
-            }
+        let members = self.layers[0].weight.size()[0] as usize;
+        let on_cpu = self.layers[0].weight.device() == Device::Cpu;
+        let parts = if on_cpu {
+            threads::member_parts(members)
+        } else {
+            vec![(0, members)]
+        };
+        let jobs: Vec<(Vec<(Tensor, Tensor)>, f64)> = parts
+            .iter()
+            .map(|&(start, len)| {
+                let part = |t: &Tensor| t.detach().narrow(0, start as i64, len as i64);
+                let pairs = self.params().into_iter().zip(online.params());
+                (pairs.map(|(t, o)| (part(t), part(o))).collect(), 1.0 - rho)
+            })
+            .collect();
+        threads::run_parts(jobs, |(pairs, weight)| {
+            tch::no_grad(|| {
+                for (mut t, o) in pairs {
+                    let _ = t.lerp_(&o, weight);
+                }
+            })
         });
     }
 }
@@ -867,7 +884,8 @@ mod tests {
         let online = Ensemble::new(2, &[3, 5, 1], Device::Cpu, &mut rng);
         let mut target = Ensemble::new(2, &[3, 5, 1], Device::Cpu, &mut rng).copy();
         let before = target.member_flat(1);
-        target.polyak_toward(&online, 0.995);
+        // Split over threads as the learner runs it.
+        crate::threads::with_parts(2, || target.polyak_toward(&online, 0.995));
         let after = target.member_flat(1);
         let on = online.member_flat(1);
         for k in 0..before.len() {

@@ -36,6 +36,9 @@ impl Adam {
     pub fn step(&mut self, params: &[&Tensor]) {
         self.step += 1;
         let c = self.constants(self.step);
+        if self.step_in_parts(params, &c) {
+            return;
+        }
         self.each_param(params, |p, g, m, v| {
             // The one-pass step clears the gradient as it goes.
             fused_step_in_place(p, g, m, v, &c) || {
@@ -43,6 +46,66 @@ impl Adam {
                 false
             }
         });
+    }
+
+    /// [`Self::step`] split by ensemble members over the learner's threads (see `threads`): Adam
+    /// is element-wise, so each thread steps its members' slice of every parameter. Only where
+    /// every parameter is stacked `[E, …]` over the same E members and takes the one-pass step
+    /// (CPU, f32, contiguous, with a gradient), and there is enough of it; returns false, having
+    /// done nothing, otherwise.
+    fn step_in_parts(&self, params: &[&Tensor], c: &Constants) -> bool {
+        let Some(members) = params.first().map(|p| p.size()[0]) else {
+            return false;
+        };
+        let parts = crate::threads::member_parts(members.max(1) as usize);
+        let total: i64 = params.iter().map(|p| p.numel() as i64).sum();
+        if parts.len() < 2 || total < SPLIT_FROM {
+            return false;
+        }
+        let grads: Vec<Tensor> = params.iter().map(|p| p.grad()).collect();
+        let fits = |t: &Tensor| {
+            t.defined()
+                && t.device() == tch::Device::Cpu
+                && t.kind() == tch::Kind::Float
+                && t.is_contiguous()
+                && t.dim() > 0
+                && t.size()[0] == members
+        };
+        let all: Vec<&Tensor> = params
+            .iter()
+            .copied()
+            .chain(&grads)
+            .chain(&self.exp_avg)
+            .chain(&self.exp_avg_sq)
+            .collect();
+        if !all.iter().all(|t| fits(t)) {
+            return false;
+        }
+        let jobs: Vec<(Vec<[Tensor; 4]>, Constants)> = parts
+            .iter()
+            .map(|&(start, len)| {
+                let part = |t: &Tensor| t.detach().narrow(0, start as i64, len as i64);
+                let quads = (0..params.len())
+                    .map(|i| {
+                        [
+                            part(params[i]),
+                            part(&grads[i]),
+                            part(&self.exp_avg[i]),
+                            part(&self.exp_avg_sq[i]),
+                        ]
+                    })
+                    .collect();
+                (quads, c.clone())
+            })
+            .collect();
+        crate::threads::run_parts(jobs, |(quads, c)| {
+            for [p, g, m, v] in &quads {
+                // Each fits (checked above), so the one-pass step applies and clears `g`.
+                let stepped = fused_step_in_place(p, g, m, v, &c);
+                debug_assert!(stepped);
+            }
+        });
+        true
     }
 
     /// Runs `update(p, g, m, v)` without autograd on every parameter that has a gradient, with
@@ -113,6 +176,7 @@ impl Adam {
 }
 
 /// One step's scalars, in f32 as libtorch applies them to f32 tensors.
+#[derive(Clone)]
 struct Constants {
     one_minus_beta1: f32,
     beta2: f32,
@@ -163,6 +227,11 @@ fn fused_step_in_place(p: &Tensor, g: &Tensor, m: &Tensor, v: &Tensor, c: &Const
     adam_loop(p, g, m, v, c);
     true
 }
+
+/// Elements (of all parameters together) from which a step is worth splitting over threads:
+/// waking one costs tens of microseconds, the step goes through about a thousand elements a
+/// microsecond.
+const SPLIT_FROM: i64 = 1 << 16;
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
@@ -348,6 +417,50 @@ mod tests {
                 "fused and tensor steps differ by {rel:e} (relative)"
             );
         }
+    }
+
+    /// Split over threads by members, the step is the whole step, bit for bit (element-wise
+    /// arithmetic in the same order); every gradient is cleared.
+    #[test]
+    fn a_step_split_over_threads_is_the_whole_step() {
+        tch::manual_seed(5);
+        let shapes: [&[i64]; 2] = [&[5, 64, 256], &[5, 1, 256]];
+        let make = || -> Vec<Tensor> {
+            tch::manual_seed(6);
+            shapes
+                .iter()
+                .map(|s| {
+                    Tensor::randn(*s, (tch::Kind::Float, tch::Device::Cpu)).set_requires_grad(true)
+                })
+                .collect()
+        };
+        let (whole, split) = (make(), make());
+        let refs = |v: &[Tensor]| -> Vec<Tensor> { v.iter().map(|t| t.shallow_clone()).collect() };
+        let (w, s) = (refs(&whole), refs(&split));
+        let (w, s): (Vec<&Tensor>, Vec<&Tensor>) = (w.iter().collect(), s.iter().collect());
+        let (mut a, mut b) = (Adam::new(&w, 1e-2), Adam::new(&s, 1e-2));
+        assert!(5 * 65 * 256 >= SPLIT_FROM);
+        for _ in 0..3 {
+            let grads: Vec<Tensor> = shapes
+                .iter()
+                .map(|s| Tensor::randn(*s, (tch::Kind::Float, tch::Device::Cpu)))
+                .collect();
+            for params in [&whole, &split] {
+                for (p, g) in params.iter().zip(&grads) {
+                    (p * g).sum(tch::Kind::Float).backward();
+                }
+            }
+            a.step(&w);
+            // `step`'s split path, which must apply here.
+            b.step += 1;
+            let c = b.constants(b.step);
+            assert!(crate::threads::with_parts(2, || b.step_in_parts(&s, &c)));
+        }
+        for (x, y) in whole.iter().zip(&split) {
+            assert!(x.equal(y), "split and whole steps differ");
+            assert_eq!(y.grad().abs().sum(tch::Kind::Float).double_value(&[]), 0.0);
+        }
+        assert!(a.exp_avg_sq[0].equal(&b.exp_avg_sq[0]));
     }
 
     /// ε matters where gradients are as small as ε itself: a first step is −lr·g/(|g| + ε), so
