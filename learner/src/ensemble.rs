@@ -83,12 +83,11 @@ impl Ensemble {
     /// members over the learner's threads (as the targets' next actions and target critics at
     /// K = 5 are).
     pub fn forward(&self, x: &Tensor) -> Tensor {
-        let members = self.layers[0].weight.size()[0];
-        let rows = members * x.size()[1];
-        if rows < SPLIT_ROWS || x.device() != Device::Cpu || fused::grad_mode() {
+        let rows = self.layers[0].weight.size()[0] * x.size()[1];
+        if rows < SPLIT_ROWS || fused::grad_mode() {
             return self.forward_taped(x).0;
         }
-        let parts = threads::member_parts(members as usize);
+        let parts = self.parts();
         if parts.len() == 1 {
             return self.forward_taped(x).0;
         }
@@ -272,10 +271,9 @@ impl Ensemble {
                             .sum_dim_intlist(1, true, Kind::Float)
                             .transpose(1, 2),
                     );
-                } else if !train {
-                } else if self.matmul == Kind::Float {
+                } else if train && self.matmul == Kind::Float {
                     let _ = dw.baddbmm_(&input_l.transpose(1, 2), &dz);
-                } else {
+                } else if train {
                     // The bf16 product is added onto the fp32 gradient.
                     let product = input_l.transpose(1, 2).bmm(&dz);
                     if !fused::add_bf16_(&dw, &product) {
@@ -317,13 +315,7 @@ impl Ensemble {
         if !self.has_hand_backward() || !self.layers.last().is_some_and(|l| l.one_column()) {
             return self.detached().forward(x);
         }
-        let members = self.layers[0].weight.size()[0] as usize;
-        let parts = if x.device() == Device::Cpu {
-            threads::member_parts(members)
-        } else {
-            vec![(0, members)]
-        };
-        let results = threads::run_parts(self.split(&parts, &[&x.detach()]), |(part, x)| {
+        let results = threads::run_parts(self.split(&self.parts(), &[&x.detach()]), |(part, x)| {
             tch::no_grad(|| {
                 let (q, tape) = part.forward_taped(&x[0]);
                 let dq_dx = part.backward_into(&tape, &q.ones_like(), None, true);
@@ -345,15 +337,18 @@ impl Ensemble {
             loss.sum(Kind::Float).backward();
             return (q.detach(), loss.detach());
         }
-        // The members split over the learner's threads (see `threads`).
+        self.regress_in_parts(x, y, &self.parts())
+    }
+
+    /// How the members split over the learner's threads (see `threads`): on CPU, in parts;
+    /// elsewhere whole.
+    fn parts(&self) -> Vec<(usize, usize)> {
         let members = self.layers[0].weight.size()[0] as usize;
-        let on_cpu = x.device() == Device::Cpu;
-        let parts = if on_cpu {
+        if self.layers[0].weight.device() == Device::Cpu {
             threads::member_parts(members)
         } else {
             vec![(0, members)]
-        };
-        self.regress_in_parts(x, y, &parts)
+        }
     }
 
     /// [`Self::regress`] by hand, the members in `parts` (`(start, len)`, covering them all in
@@ -484,25 +479,16 @@ impl Ensemble {
     /// `self ← ρ·self + (1 − ρ)·online`, member by member (Polyak averaging).
     /// On CPU, split by members over the learner's threads.
     pub fn polyak_toward(&mut self, online: &Ensemble, rho: f64) {
-        let members = self.layers[0].weight.size()[0] as usize;
-        let on_cpu = self.layers[0].weight.device() == Device::Cpu;
-        let parts = if on_cpu {
-            threads::member_parts(members)
-        } else {
-            vec![(0, members)]
-        };
-        let jobs: Vec<(Vec<(Tensor, Tensor)>, f64)> = parts
-            .iter()
-            .map(|&(start, len)| {
-                let part = |t: &Tensor| t.detach().narrow(0, start as i64, len as i64);
-                let pairs = self.params().into_iter().zip(online.params());
-                (pairs.map(|(t, o)| (part(t), part(o))).collect(), 1.0 - rho)
-            })
+        // Each part's members are views of this ensemble's parameters: `lerp_` writes them.
+        let jobs: Vec<((Ensemble, Vec<Tensor>), f64)> = self
+            .split(&self.parts(), &online.params())
+            .into_iter()
+            .map(|job| (job, 1.0 - rho))
             .collect();
-        threads::run_parts(jobs, |(pairs, weight)| {
+        threads::run_parts(jobs, |((part, online), weight)| {
             tch::no_grad(|| {
-                for (mut t, o) in pairs {
-                    let _ = t.lerp_(&o, weight);
+                for (t, o) in part.params().into_iter().zip(&online) {
+                    let _ = t.shallow_clone().lerp_(o, weight);
                 }
             })
         });

@@ -63,14 +63,8 @@ impl Adam {
             return false;
         }
         let grads: Vec<Tensor> = params.iter().map(|p| p.grad()).collect();
-        let fits = |t: &Tensor| {
-            t.defined()
-                && t.device() == tch::Device::Cpu
-                && t.kind() == tch::Kind::Float
-                && t.is_contiguous()
-                && t.dim() > 0
-                && t.size()[0] == members
-        };
+        let fits =
+            |t: &Tensor| t.defined() && takes_one_pass(t) && t.dim() > 0 && t.size()[0] == members;
         let all: Vec<&Tensor> = params
             .iter()
             .copied()
@@ -205,11 +199,11 @@ fn tensor_step(p: &mut Tensor, g: &Tensor, m: &mut Tensor, v: &mut Tensor, c: &C
 /// ten passes with their temporaries. Returns false where it does not apply (another device or
 /// layout); the caller then takes the tensor path.
 fn fused_step_in_place(p: &Tensor, g: &Tensor, m: &Tensor, v: &Tensor, c: &Constants) -> bool {
-    let ok = |t: &Tensor| {
-        t.device() == tch::Device::Cpu && t.kind() == tch::Kind::Float && t.is_contiguous()
-    };
     let n = p.numel();
-    if ![p, g, m, v].iter().all(|t| ok(t) && t.numel() == n) {
+    if ![p, g, m, v]
+        .iter()
+        .all(|t| takes_one_pass(t) && t.numel() == n)
+    {
         return false;
     }
     // SAFETY: four distinct, contiguous f32 buffers of n elements each (a parameter, its
@@ -226,6 +220,11 @@ fn fused_step_in_place(p: &Tensor, g: &Tensor, m: &Tensor, v: &Tensor, c: &Const
     }
     adam_loop(p, g, m, v, c);
     true
+}
+
+/// Whether `t` is memory the one-pass step can go through: contiguous f32 on the CPU.
+fn takes_one_pass(t: &Tensor) -> bool {
+    t.device() == tch::Device::Cpu && t.kind() == tch::Kind::Float && t.is_contiguous()
 }
 
 /// Elements (of all parameters together) from which a step is worth splitting over threads:
