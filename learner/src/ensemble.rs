@@ -167,9 +167,8 @@ impl Ensemble {
             let q = (h * w.transpose(1, 2)).sum_dim_intlist(-1, true, Kind::Float) + &layer.bias;
             return (q, false);
         }
-        if self.matmul == Kind::Float {
-            return (layer.bias.baddbmm(h, w, 1.0, 1.0), false);
-        }
+        // The bias and ReLU in one pass over the product (`baddbmm` would first copy the bias
+        // into every row, and the ReLU be a third pass).
         let mut z = h.bmm(w);
         if fused::bias_relu_(&z, &layer.bias, relu) {
             return (z, relu);

@@ -3,8 +3,8 @@
 //! libtorch runs each element-wise step of a layer as its own pass, and with bf16 slowly
 //! (0.3–0.9 ms per step on a critic layer's `[10, 256, 256]` at one thread on a Xeon, where the
 //! pass itself needs tens of microseconds). These kernels do a layer's bias and ReLU, or a
-//! backward's mask, product and sums, in one pass over contiguous CPU memory, compiled for AVX2
-//! where the CPU has it. Each one checks its tensors and does nothing where it does not apply
+//! backward's mask, product and sums, in one pass over contiguous CPU memory, compiled for AVX-512
+//! or AVX2 where the CPU has them. Each one checks its tensors and does nothing where it does not apply
 //! (another device, layout or element type, or an output that autograd tracks): the caller then
 //! takes the tensor operations, which compute the same thing.
 //!
@@ -88,14 +88,26 @@ fn dims3(t: &Tensor) -> Option<(usize, usize, usize)> {
 }
 
 /// `vectorised! { fn name<T>(args) { body } }` defines `name`, which runs `body` compiled for
-/// AVX2 where the CPU has it (its loops then run eight lanes wide), else as it is; without FMA,
-/// so that every CPU rounds alike. (A body passed as a closure is not reliably inlined into a
+/// AVX-512 where the CPU has it (its loops then run sixteen lanes wide: 1.2× the whole bf16
+/// update at two threads on a Xeon, against AVX2), else for AVX2 (eight), else as it is; without
+/// FMA, so that every CPU rounds alike. (A body passed as a closure is not reliably inlined into a
 /// `#[target_feature]` function, and compiled on its own it gets no AVX2.)
 macro_rules! vectorised {
     ($(fn $name:ident<$t:ident>($($arg:ident: $ty:ty),* $(,)?) $body:block)*) => {$(
         fn $name<$t: Elem>($($arg: $ty),*) {
             #[inline(always)]
             fn body<$t: Elem>($($arg: $ty),*) $body
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx512f")
+                && std::arch::is_x86_feature_detected!("avx512bw")
+            {
+                #[target_feature(enable = "avx512f,avx512bw")]
+                unsafe fn avx512<$t: Elem>($($arg: $ty),*) {
+                    body::<$t>($($arg),*)
+                }
+                // SAFETY: the CPU has AVX-512 F and BW.
+                return unsafe { avx512::<$t>($($arg),*) };
+            }
             #[cfg(target_arch = "x86_64")]
             if std::arch::is_x86_feature_detected!("avx2") {
                 #[target_feature(enable = "avx2")]
