@@ -87,40 +87,41 @@ fn dims3(t: &Tensor) -> Option<(usize, usize, usize)> {
     }
 }
 
-/// `vectorised! { fn name<T>(args) { body } }` defines `name`, which runs `body` compiled for
+/// `vectorised! { fn name<T>(args) { body } }` (`<T>`, an [`Elem`], optional) defines `name`, which runs `body` compiled for
 /// AVX-512 where the CPU has it (its loops then run sixteen lanes wide: 1.2× the whole bf16
 /// update at two threads on a Xeon, against AVX2), else for AVX2 (eight), else as it is; without
 /// FMA, so that every CPU rounds alike. (A body passed as a closure is not reliably inlined into a
 /// `#[target_feature]` function, and compiled on its own it gets no AVX2.)
 macro_rules! vectorised {
-    ($(fn $name:ident<$t:ident>($($arg:ident: $ty:ty),* $(,)?) $body:block)*) => {$(
-        fn $name<$t: Elem>($($arg: $ty),*) {
+    ($(fn $name:ident $(<$t:ident>)? ($($arg:ident: $ty:ty),* $(,)?) $body:block)*) => {$(
+        fn $name $(<$t: $crate::fused::Elem>)? ($($arg: $ty),*) {
             #[inline(always)]
-            fn body<$t: Elem>($($arg: $ty),*) $body
+            fn body $(<$t: $crate::fused::Elem>)? ($($arg: $ty),*) $body
             #[cfg(target_arch = "x86_64")]
             if std::arch::is_x86_feature_detected!("avx512f")
                 && std::arch::is_x86_feature_detected!("avx512bw")
             {
                 #[target_feature(enable = "avx512f,avx512bw")]
-                unsafe fn avx512<$t: Elem>($($arg: $ty),*) {
-                    body::<$t>($($arg),*)
+                unsafe fn avx512 $(<$t: $crate::fused::Elem>)? ($($arg: $ty),*) {
+                    body $(::<$t>)? ($($arg),*)
                 }
                 // SAFETY: the CPU has AVX-512 F and BW.
-                return unsafe { avx512::<$t>($($arg),*) };
+                return unsafe { avx512 $(::<$t>)? ($($arg),*) };
             }
             #[cfg(target_arch = "x86_64")]
             if std::arch::is_x86_feature_detected!("avx2") {
                 #[target_feature(enable = "avx2")]
-                unsafe fn avx2<$t: Elem>($($arg: $ty),*) {
-                    body::<$t>($($arg),*)
+                unsafe fn avx2 $(<$t: $crate::fused::Elem>)? ($($arg: $ty),*) {
+                    body $(::<$t>)? ($($arg),*)
                 }
                 // SAFETY: the CPU has AVX2.
-                return unsafe { avx2::<$t>($($arg),*) };
+                return unsafe { avx2 $(::<$t>)? ($($arg),*) };
             }
-            body::<$t>($($arg),*)
+            body $(::<$t>)? ($($arg),*)
         }
     )*};
 }
+pub(crate) use vectorised;
 
 /// `z ← relu(z + bias)` in place (the ReLU only if `relu`), rounded once to `z`'s element type.
 /// `z` is `[E, B, O]` (f32 or bf16), `bias` f32 `[E, 1, O]`. Returns false, having done nothing,
@@ -176,7 +177,8 @@ pub fn one_output(h: &Tensor, w: &Tensor, bias: &Tensor) -> Option<Tensor> {
     }
 }
 
-/// Lanes of the dot product's partial sums: four AVX2 registers, enough to hide the adds' latency.
+/// Lanes of the dot product's partial sums: four AVX2 registers (two AVX-512 ones), enough to hide
+/// the adds' latency.
 const DOT_LANES: usize = 32;
 
 fn one_output_of<T: Elem>(h: &Tensor, w: &Tensor, bias: &Tensor) -> Option<Tensor> {

@@ -34,17 +34,42 @@ impl Adam {
 
     /// One step from the gradients accumulated in `params`, then clears them.
     pub fn step(&mut self, params: &[&Tensor]) {
+        self.step_then_average(params, None);
+    }
+
+    /// [`Self::step`], then Polyak averaging of `targets` (one per parameter, of its shape)
+    /// toward the stepped parameters, `target ← ρ·target + (1 − ρ)·p`: on CPU in the step's own
+    /// pass over the weights, which saves a pass over both.
+    pub fn step_and_average(&mut self, params: &[&Tensor], targets: &[&Tensor], rho: f64) {
+        assert_eq!(params.len(), targets.len(), "one target per parameter");
+        self.step_then_average(params, Some((targets, (1.0 - rho) as f32)));
+    }
+
+    /// The step, and with `average = (targets, 1 − ρ)` the targets' averaging.
+    fn step_then_average(&mut self, params: &[&Tensor], average: Option<(&[&Tensor], f32)>) {
         self.step += 1;
         let c = self.constants(self.step);
-        if self.step_in_parts(params, &c) {
+        if self.step_in_parts(params, average, &c) {
             return;
         }
+        let mut targets = average.map(|(t, _)| t.iter());
+        let weight = average.map_or(0.0, |(_, w)| w);
         self.each_param(params, |p, g, m, v| {
+            let target = targets
+                .as_mut()
+                .map(|t| (*t.next().expect("a target"), weight));
             // The one-pass step clears the gradient as it goes.
-            fused_step_in_place(p, g, m, v, &c) || {
+            if target.is_some() && fused_step_in_place(p, g, m, v, target, &c) {
+                return true;
+            }
+            let cleared = fused_step_in_place(p, g, m, v, None, &c) || {
                 tensor_step(&mut p.shallow_clone(), g, m, v, &c);
                 false
+            };
+            if let Some((t, w)) = target {
+                let _ = t.shallow_clone().lerp_(p, w as f64);
             }
+            cleared
         });
     }
 
@@ -53,7 +78,12 @@ impl Adam {
     /// every parameter is stacked `[E, …]` over the same E members and takes the one-pass step
     /// (CPU, f32, contiguous, with a gradient), and there is enough of it; returns false, having
     /// done nothing, otherwise.
-    fn step_in_parts(&self, params: &[&Tensor], c: &Constants) -> bool {
+    fn step_in_parts(
+        &self,
+        params: &[&Tensor],
+        average: Option<(&[&Tensor], f32)>,
+        c: &Constants,
+    ) -> bool {
         let Some(members) = params.first().map(|p| p.size()[0]) else {
             return false;
         };
@@ -65,37 +95,43 @@ impl Adam {
         let grads: Vec<Tensor> = params.iter().map(|p| p.grad()).collect();
         let fits =
             |t: &Tensor| t.defined() && takes_one_pass(t) && t.dim() > 0 && t.size()[0] == members;
+        let targets = average.map_or(&[][..], |(t, _)| t);
         let all: Vec<&Tensor> = params
             .iter()
             .copied()
             .chain(&grads)
             .chain(&self.exp_avg)
             .chain(&self.exp_avg_sq)
+            .chain(targets.iter().copied())
             .collect();
         if !all.iter().all(|t| fits(t)) {
             return false;
         }
-        let jobs: Vec<(Vec<[Tensor; 4]>, Constants)> = parts
+        let weight = average.map(|(_, w)| w);
+        type Job = (Vec<([Tensor; 4], Option<Tensor>)>, Option<f32>, Constants);
+        let jobs: Vec<Job> = parts
             .iter()
             .map(|&(start, len)| {
                 let part = |t: &Tensor| t.detach().narrow(0, start as i64, len as i64);
                 let quads = (0..params.len())
                     .map(|i| {
-                        [
+                        let quad = [
                             part(params[i]),
                             part(&grads[i]),
                             part(&self.exp_avg[i]),
                             part(&self.exp_avg_sq[i]),
-                        ]
+                        ];
+                        (quad, targets.get(i).map(|t| part(t)))
                     })
                     .collect();
-                (quads, c.clone())
+                (quads, weight, c.clone())
             })
             .collect();
-        crate::threads::run_parts(jobs, |(quads, c)| {
-            for [p, g, m, v] in &quads {
+        crate::threads::run_parts(jobs, |(quads, weight, c)| {
+            for ([p, g, m, v], target) in &quads {
+                let target = target.as_ref().zip(weight);
                 // Each fits (checked above), so the one-pass step applies and clears `g`.
-                let stepped = fused_step_in_place(p, g, m, v, &c);
+                let stepped = fused_step_in_place(p, g, m, v, target, &c);
                 debug_assert!(stepped);
             }
         });
@@ -160,7 +196,7 @@ impl Adam {
             for (&j, c) in members.iter().zip(&consts) {
                 let j = j as i64;
                 let (mut pj, gj, mut mj, mut vj) = (p.get(j), g.get(j), m.get(j), v.get(j));
-                if !fused_step_in_place(&pj, &gj, &mj, &vj, c) {
+                if !fused_step_in_place(&pj, &gj, &mj, &vj, None, c) {
                     tensor_step(&mut pj, &gj, &mut mj, &mut vj, c);
                 }
             }
@@ -194,31 +230,35 @@ fn tensor_step(p: &mut Tensor, g: &Tensor, m: &mut Tensor, v: &mut Tensor, c: &C
     let _ = p.g_sub_(&update);
 }
 
-/// The same step in one pass over contiguous f32 CPU memory (parameter, gradient, both moments),
-/// clearing the gradient as it goes: the optimiser's memory traffic is then what it must be, not
-/// ten passes with their temporaries. Returns false where it does not apply (another device or
-/// layout); the caller then takes the tensor path.
-fn fused_step_in_place(p: &Tensor, g: &Tensor, m: &Tensor, v: &Tensor, c: &Constants) -> bool {
+/// The same step in one pass over contiguous f32 CPU memory (parameter, gradient, both moments,
+/// and with `target = (t, 1 − ρ)` the parameter's Polyak average), clearing the gradient as it
+/// goes: the optimiser's memory traffic is then what it must be, not ten passes with their
+/// temporaries. Returns false where it does not apply (another device or layout); the caller
+/// then takes the tensor path.
+fn fused_step_in_place(
+    p: &Tensor,
+    g: &Tensor,
+    m: &Tensor,
+    v: &Tensor,
+    target: Option<(&Tensor, f32)>,
+    c: &Constants,
+) -> bool {
     let n = p.numel();
-    if ![p, g, m, v]
-        .iter()
+    let tensors = [p, g, m, v].into_iter().chain(target.map(|(t, _)| t));
+    if !tensors
+        .into_iter()
         .all(|t| takes_one_pass(t) && t.numel() == n)
     {
         return false;
     }
-    // SAFETY: four distinct, contiguous f32 buffers of n elements each (a parameter, its
-    // gradient and its two moments never share storage), not used elsewhere during the step.
-    let (p, g, m, v) = unsafe {
-        let s = |t: &Tensor| std::slice::from_raw_parts_mut(t.data_ptr() as *mut f32, n);
-        (s(p), s(g), s(m), s(v))
-    };
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2.
-        unsafe { adam_avx2(p, g, m, v, c) };
-        return true;
+    // SAFETY: distinct, contiguous f32 buffers of n elements each (a parameter, its gradient,
+    // its two moments and its average never share storage), not used elsewhere during the step.
+    let s = |t: &Tensor| unsafe { std::slice::from_raw_parts_mut(t.data_ptr() as *mut f32, n) };
+    let (p, g, m, v) = (s(p), s(g), s(m), s(v));
+    match target {
+        None => adam_loop(p, g, m, v, c),
+        Some((t, weight)) => adam_average_loop(p, g, m, v, s(t), weight, c),
     }
-    adam_loop(p, g, m, v, c);
     true
 }
 
@@ -232,27 +272,39 @@ fn takes_one_pass(t: &Tensor) -> bool {
 /// microsecond.
 const SPLIT_FROM: i64 = 1 << 16;
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn adam_avx2(p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32], c: &Constants) {
-    adam_loop(p, g, m, v, c)
-}
-
 /// Element by element, the arithmetic of [`tensor_step`] (no fused multiply-add, so every CPU
 /// rounds alike).
 #[inline(always)]
-fn adam_loop(p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32], c: &Constants) {
-    for (((p, g), m), v) in p
-        .iter_mut()
-        .zip(g.iter_mut())
-        .zip(m.iter_mut())
-        .zip(v.iter_mut())
-    {
-        let grad = *g;
-        *m += c.one_minus_beta1 * (grad - *m);
-        *v = *v * c.beta2 + grad * (grad * c.one_minus_beta2);
-        *p -= *m / (v.sqrt() + c.eps_hat) * c.step_size;
-        *g = 0.0;
+fn adam_element(p: &mut f32, g: &mut f32, m: &mut f32, v: &mut f32, c: &Constants) {
+    let grad = *g;
+    *m += c.one_minus_beta1 * (grad - *m);
+    *v = *v * c.beta2 + grad * (grad * c.one_minus_beta2);
+    *p -= *m / (v.sqrt() + c.eps_hat) * c.step_size;
+    *g = 0.0;
+}
+
+crate::fused::vectorised! {
+    fn adam_loop(p: &mut [f32], g: &mut [f32], m: &mut [f32], v: &mut [f32], c: &Constants) {
+        for (((p, g), m), v) in p.iter_mut().zip(g.iter_mut()).zip(m.iter_mut()).zip(v.iter_mut()) {
+            adam_element(p, g, m, v, c);
+        }
+    }
+
+    fn adam_average_loop(
+        p: &mut [f32],
+        g: &mut [f32],
+        m: &mut [f32],
+        v: &mut [f32],
+        target: &mut [f32],
+        weight: f32,
+        c: &Constants,
+    ) {
+        let each = p.iter_mut().zip(g.iter_mut()).zip(m.iter_mut()).zip(v.iter_mut()).zip(target);
+        for ((((p, g), m), v), t) in each {
+            adam_element(p, g, m, v, c);
+            // Polyak averaging toward the stepped weight, as libtorch's lerp for a small weight.
+            *t += weight * (*p - *t);
+        }
     }
 }
 
@@ -299,15 +351,15 @@ mod tests {
         let c = Adam::new(&[], 0.1).constants(1);
         let t = |n: i64| Tensor::zeros([n, 3], (tch::Kind::Float, tch::Device::Cpu));
         let (p, g, m, v) = (t(4), t(4), t(4), t(4));
-        assert!(fused_step_in_place(&p, &g, &m, &v, &c));
+        assert!(fused_step_in_place(&p, &g, &m, &v, None, &c));
         let transposed =
             Tensor::zeros([3, 4], (tch::Kind::Float, tch::Device::Cpu)).transpose(0, 1);
         assert!(!transposed.is_contiguous());
-        assert!(!fused_step_in_place(&transposed, &g, &m, &v, &c));
-        assert!(!fused_step_in_place(&p, &transposed, &m, &v, &c));
+        assert!(!fused_step_in_place(&transposed, &g, &m, &v, None, &c));
+        assert!(!fused_step_in_place(&p, &transposed, &m, &v, None, &c));
         let double = t(4).to_kind(tch::Kind::Double);
-        assert!(!fused_step_in_place(&p, &g, &double, &v, &c));
-        assert!(!fused_step_in_place(&p, &g, &m, &t(5), &c));
+        assert!(!fused_step_in_place(&p, &g, &double, &v, None, &c));
+        assert!(!fused_step_in_place(&p, &g, &m, &t(5), None, &c));
     }
 
     /// Members stepping separately (DNS): three members of a stacked `[3, 2]` parameter, with
@@ -453,13 +505,91 @@ mod tests {
             // `step`'s split path, which must apply here.
             b.step += 1;
             let c = b.constants(b.step);
-            assert!(crate::threads::with_parts(2, || b.step_in_parts(&s, &c)));
+            assert!(crate::threads::with_parts(2, || b.step_in_parts(&s, None, &c)));
         }
         for (x, y) in whole.iter().zip(&split) {
             assert!(x.equal(y), "split and whole steps differ");
             assert_eq!(y.grad().abs().sum(tch::Kind::Float).double_value(&[]), 0.0);
         }
         assert!(a.exp_avg_sq[0].equal(&b.exp_avg_sq[0]));
+    }
+
+    /// `step_and_average` is the step, then `t ← ρ·t + (1 − ρ)·p` with the stepped `p`: checked
+    /// against that formula in f64 on the one-pass path (whole and split over threads) and on
+    /// the tensor path (a non-contiguous target), and the step itself against `step`.
+    #[test]
+    fn averaging_in_the_step_is_polyak_toward_the_stepped_weights() {
+        let rho = 0.9;
+        let shapes: [&[i64]; 2] = [&[4, 64, 256], &[4, 1, 256]];
+        let fresh = |seed: i64| -> Vec<Tensor> {
+            tch::manual_seed(seed);
+            shapes
+                .iter()
+                .map(|s| Tensor::randn(*s, (tch::Kind::Float, tch::Device::Cpu)))
+                .collect()
+        };
+        let floats = |t: &Tensor| -> Vec<f64> {
+            Vec::<f32>::try_from(&t.detach().contiguous().reshape([-1]))
+                .unwrap()
+                .into_iter()
+                .map(f64::from)
+                .collect()
+        };
+        // (parts, whether the targets are transposed views: not one-pass memory)
+        for (parts, strided) in [(1, false), (2, false), (1, true)] {
+            let (params, plain) = (fresh(1), fresh(1));
+            let params: Vec<Tensor> = params
+                .into_iter()
+                .map(|p| p.set_requires_grad(true))
+                .collect();
+            let plain: Vec<Tensor> = plain
+                .into_iter()
+                .map(|p| p.set_requires_grad(true))
+                .collect();
+            let targets: Vec<Tensor> = fresh(2)
+                .into_iter()
+                .map(|t| {
+                    if strided {
+                        t.transpose(0, 2).contiguous().transpose(0, 2)
+                    } else {
+                        t
+                    }
+                })
+                .collect();
+            assert_eq!(targets[0].is_contiguous(), !strided);
+            let p_refs: Vec<&Tensor> = params.iter().collect();
+            let q_refs: Vec<&Tensor> = plain.iter().collect();
+            let t_refs: Vec<&Tensor> = targets.iter().collect();
+            let (mut a, mut b) = (Adam::new(&p_refs, 1e-2), Adam::new(&q_refs, 1e-2));
+            for step in 0..3 {
+                let before: Vec<Vec<f64>> = targets.iter().map(floats).collect();
+                for (i, g) in fresh(10 + step).iter().enumerate() {
+                    (&params[i] * g).sum(tch::Kind::Float).backward();
+                    (&plain[i] * g).sum(tch::Kind::Float).backward();
+                }
+                crate::threads::with_parts(parts, || a.step_and_average(&p_refs, &t_refs, rho));
+                b.step(&q_refs);
+                for i in 0..shapes.len() {
+                    assert!(params[i].equal(&plain[i]), "the step is not step()'s");
+                    let (p, t) = (floats(&params[i]), floats(&targets[i]));
+                    for ((t, t0), p) in t.iter().zip(&before[i]).zip(&p) {
+                        let want = rho * t0 + (1.0 - rho) * p;
+                        assert!(
+                            (t - want).abs() <= 1e-6 * (1.0 + want.abs()),
+                            "{t} vs {want}"
+                        );
+                    }
+                    assert_eq!(
+                        params[i]
+                            .grad()
+                            .abs()
+                            .sum(tch::Kind::Float)
+                            .double_value(&[]),
+                        0.0
+                    );
+                }
+            }
+        }
     }
 
     /// ε matters where gradients are as small as ε itself: a first step is −lr·g/(|g| + ε), so

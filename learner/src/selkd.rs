@@ -259,7 +259,13 @@ impl Selkd {
                         }
                     });
                 }
-                self.critic_opt.step(&self.critics.params());
+                // Line 13 with it: Polyak averaging of the target critics toward the stepped
+                // critics, in the optimiser's pass over the weights.
+                self.critic_opt.step_and_average(
+                    &self.critics.params(),
+                    &self.target_critics.params(),
+                    self.cfg.polyak,
+                );
             }
             // DNS: only k critics learn from this batch, drawn by a k-DPP over how alike the
             // critics' values on it are; the others keep their weights and Adam state.
@@ -276,11 +282,11 @@ impl Selkd {
                 // Every critic has its gradient; only the drawn ones step on it.
                 self.critic_opt
                     .step_members(&self.critics.params(), &trained, n);
+                // Line 13: Polyak averaging of the target critics after every critic update.
+                self.target_critics
+                    .polyak_toward(&self.critics, self.cfg.polyak);
             }
         }
-        // Line 13: Polyak averaging of the target critics after every critic update.
-        self.target_critics
-            .polyak_toward(&self.critics, self.cfg.polyak);
         self.critic_updates += 1;
         (
             loss.double_value(&[]) / n as f64,
