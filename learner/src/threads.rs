@@ -115,7 +115,7 @@ where
     let first = job(first);
     let mut others: Vec<Option<R>> = (0..sent).map(|_| None).collect();
     for _ in 0..sent {
-        let (i, r) = results.recv().expect("learner worker thread gone");
+        let (i, r) = receive(&results).expect("learner worker thread gone");
         match r {
             Ok(r) => others[i] = Some(r),
             Err(panic) => std::panic::resume_unwind(panic),
@@ -125,6 +125,24 @@ where
         .chain(others.into_iter().map(|r| r.expect("every part answered")))
         .collect()
 }
+
+/// The next message, or `None` once every sender is gone. It polls for a little while before
+/// it sleeps: parts of one update arrive tens of microseconds apart, and a sleeping thread takes
+/// about as long to wake; the polling is short enough to cost little where another process holds
+/// the core.
+fn receive<T>(from: &mpsc::Receiver<T>) -> Option<T> {
+    let start = std::time::Instant::now();
+    while start.elapsed() < POLL_FOR {
+        match from.try_recv() {
+            Ok(message) => return Some(message),
+            Err(mpsc::TryRecvError::Disconnected) => return None,
+            Err(mpsc::TryRecvError::Empty) => std::hint::spin_loop(),
+        }
+    }
+    from.recv().ok()
+}
+
+const POLL_FOR: std::time::Duration = std::time::Duration::from_micros(50);
 
 type Task = Box<dyn FnOnce() + Send>;
 
@@ -141,7 +159,7 @@ impl Worker {
             .spawn(move || {
                 flush_subnormals();
                 let _no_grad = tch::no_grad_guard();
-                for task in inbox {
+                while let Some(task) = receive(&inbox) {
                     task();
                 }
             })
