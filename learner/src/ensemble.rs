@@ -107,7 +107,7 @@ impl Ensemble {
         let last = self.layers.len() - 1;
         let mut inputs = Vec::with_capacity(self.layers.len());
         let mut weights = Vec::with_capacity(self.layers.len());
-        let mut h = x.to_kind(self.matmul);
+        let mut h = self.in_matmul_kind(x);
         for (l, layer) in self.layers.iter().enumerate() {
             let w = self.matmul_weight(layer);
             let hidden = l < last;
@@ -151,8 +151,18 @@ impl Ensemble {
         if self.matmul == Kind::Float || layer.one_column() {
             layer.weight.shallow_clone()
         } else {
-            layer.weight.to_kind(self.matmul)
+            self.in_matmul_kind(&layer.weight)
         }
+    }
+
+    /// `t` in the matmuls' element type (itself where it is already).
+    fn in_matmul_kind(&self, t: &Tensor) -> Tensor {
+        if self.matmul == Kind::BFloat16 && t.kind() == Kind::Float {
+            if let Some(rounded) = fused::to_bf16(t) {
+                return rounded;
+            }
+        }
+        t.to_kind(self.matmul)
     }
 
     /// `h·W + b` for every member, and with `relu` where it can, its ReLU; `w` is the layer's
@@ -261,7 +271,7 @@ impl Ensemble {
                 }
                 if !one_column {
                     // bf16 operands (a no-op for fp32, and for a `dz` already bf16).
-                    dz = dz.to_kind(self.matmul);
+                    dz = self.in_matmul_kind(&dz);
                 }
                 if one_column {
                     // fp32, as in the forward (with bf16 `input_l`, the product promotes).

@@ -87,8 +87,8 @@ fn dims3(t: &Tensor) -> Option<(usize, usize, usize)> {
     }
 }
 
-/// `vectorised! { fn name<T>(args) { body } }` (`<T>`, an [`Elem`], optional) defines `name`, which runs `body` compiled for
-/// AVX-512 where the CPU has it (its loops then run sixteen lanes wide: 1.2× the whole bf16
+/// `vectorised! { fn name<T>(args) { body } }` (`<T>`, an [`Elem`], optional) defines `name`,
+/// which runs `body` compiled for AVX-512 where the CPU has it (its loops then run sixteen lanes wide: 1.2× the whole bf16
 /// update at two threads on a Xeon, against AVX2), else for AVX2 (eight), else as it is; without
 /// FMA, so that every CPU rounds alike. (A body passed as a closure is not reliably inlined into a
 /// `#[target_feature]` function, and compiled on its own it gets no AVX2.)
@@ -369,6 +369,28 @@ vectorised! {
     }
 }
 
+/// `t` rounded to bf16 (a fresh tensor of its shape): the matmuls' operands. `None` where it
+/// does not apply (not contiguous f32 on the CPU, or tracked by autograd).
+pub fn to_bf16(t: &Tensor) -> Option<Tensor> {
+    let n = t.numel();
+    if !untracked(&[t]) {
+        return None;
+    }
+    let out = Tensor::empty(t.size(), (Kind::BFloat16, Device::Cpu));
+    // SAFETY: `out` is fresh and the only one written.
+    let (src, dst) = unsafe { (elems::<f32>(t, n)?, elems::<Bf16>(&out, n)?) };
+    round_loop::<Bf16>(dst, src);
+    Some(out)
+}
+
+vectorised! {
+    fn round_loop<T>(dst: &mut [T], src: &[f32]) {
+        for (d, &s) in dst.iter_mut().zip(src) {
+            *d = T::store(s);
+        }
+    }
+}
+
 /// `dst += src`, an f32 tensor and a bf16 one of the same number of elements (a gradient and a
 /// bf16 matmul's product). Returns false, having done nothing, where it does not apply.
 pub fn add_bf16_(dst: &Tensor, src: &Tensor) -> bool {
@@ -434,14 +456,19 @@ mod tests {
         values.extend(floats(&(randn(&[1000]) * 1e3)));
         let ours: Vec<i16> = values.iter().map(|&x| Bf16::store(x).0 as i16).collect();
         let torch = bits(&Tensor::from_slice(&values).to_kind(Kind::BFloat16));
+        // And through the vectorised conversion (the values again, in a tensor's shape).
+        let tensor = to_bf16(&Tensor::from_slice(&values).view([1, -1])).unwrap();
+        assert_eq!(tensor.size(), [1, values.len() as i64]);
         let nan = |b: i16| (b as u16 & 0x7F80) == 0x7F80 && (b as u16 & 0x7F) != 0;
-        for (i, (&a, &b)) in ours.iter().zip(&torch).enumerate() {
-            // libtorch's vector and scalar conversions write different NaNs.
-            assert!(
-                a == b || (nan(a) && nan(b)),
-                "value {i} ({:e}): {a:#x} against {b:#x}",
-                values[i]
-            );
+        for ours in [ours, bits(&tensor)] {
+            for (i, (&a, &b)) in ours.iter().zip(&torch).enumerate() {
+                // libtorch's vector and scalar conversions write different NaNs.
+                assert!(
+                    a == b || (nan(a) && nan(b)),
+                    "value {i} ({:e}): {a:#x} against {b:#x}",
+                    values[i]
+                );
+            }
         }
         // And back: every bf16 widens exactly.
         let t = Tensor::from_slice(&values).to_kind(Kind::BFloat16);
