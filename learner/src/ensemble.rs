@@ -747,7 +747,7 @@ mod tests {
                 assert!((lv[e] as f64 - want).abs() < 1e-5 * want.max(1.0));
             }
             for p in ens.params() {
-                p.grad().zero_();
+                let _ = p.grad().zero_();
             }
             let q = ens.forward(&x).squeeze_dim(-1);
             (((&q - &y).square() * 0.5).mean_dim(1, false, Kind::Float))
