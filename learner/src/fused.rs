@@ -98,7 +98,8 @@ macro_rules! vectorised {
             #[inline(always)]
             fn body $(<$t: $crate::fused::Elem>)? ($($arg: $ty),*) $body
             #[cfg(target_arch = "x86_64")]
-            if std::arch::is_x86_feature_detected!("avx512f")
+            if $crate::fused::may_use($crate::fused::Isa::Avx512)
+                && std::arch::is_x86_feature_detected!("avx512f")
                 && std::arch::is_x86_feature_detected!("avx512bw")
             {
                 #[target_feature(enable = "avx512f,avx512bw")]
@@ -109,7 +110,9 @@ macro_rules! vectorised {
                 return unsafe { avx512 $(::<$t>)? ($($arg),*) };
             }
             #[cfg(target_arch = "x86_64")]
-            if std::arch::is_x86_feature_detected!("avx2") {
+            if $crate::fused::may_use($crate::fused::Isa::Avx2)
+                && std::arch::is_x86_feature_detected!("avx2")
+            {
                 #[target_feature(enable = "avx2")]
                 unsafe fn avx2 $(<$t: $crate::fused::Elem>)? ($($arg: $ty),*) {
                     body $(::<$t>)? ($($arg),*)
@@ -122,6 +125,42 @@ macro_rules! vectorised {
     )*};
 }
 pub(crate) use vectorised;
+
+/// The instruction sets [`vectorised!`] compiles its bodies for, narrowest first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub(crate) enum Isa {
+    #[allow(dead_code)] // named by the tests only
+    Plain,
+    Avx2,
+    Avx512,
+}
+
+/// Whether the kernels may run their `isa` variant (where the CPU has it): always, but in tests,
+/// which pin narrower variants ([`with_widest`]) to check that all of them compute the same bits.
+#[inline(always)]
+pub(crate) fn may_use(isa: Isa) -> bool {
+    #[cfg(test)]
+    return WIDEST.with(|w| w.get()) >= isa;
+    #[cfg(not(test))]
+    {
+        let _ = isa;
+        true
+    }
+}
+
+#[cfg(test)]
+thread_local! {
+    static WIDEST: std::cell::Cell<Isa> = const { std::cell::Cell::new(Isa::Avx512) };
+}
+
+/// Runs `f` with the kernels on this thread held to `isa` and narrower.
+#[cfg(test)]
+pub(crate) fn with_widest<R>(isa: Isa, f: impl FnOnce() -> R) -> R {
+    let before = WIDEST.with(|w| w.replace(isa));
+    let r = f();
+    WIDEST.with(|w| w.set(before));
+    r
+}
 
 /// `z ← relu(z + bias)` in place (the ReLU only if `relu`), rounded once to `z`'s element type.
 /// `z` is `[E, B, O]` (f32 or bf16), `bias` f32 `[E, 1, O]`. Returns false, having done nothing,
@@ -569,6 +608,65 @@ mod tests {
         let dst = dst0.copy();
         assert!(add_bf16_(&dst, &src));
         assert_eq!(bits(&dst), bits(&(&dst0 + src.to_kind(Kind::Float))));
+    }
+
+    /// Every compiled variant of every kernel (AVX-512, AVX2, plain, as far as this CPU has
+    /// them) gives the same bits: the same arithmetic in the same order, without FMA. (Each
+    /// variant's results against libtorch are the other tests'; this one makes them all count.)
+    #[test]
+    fn every_instruction_set_computes_the_same_bits() {
+        let all = |t: &[Tensor]| -> Vec<Vec<i16>> {
+            t.iter()
+                .map(|t| {
+                    let t = if t.kind() == Kind::Float {
+                        t.view_dtype(Kind::Int)
+                    } else {
+                        t.shallow_clone()
+                    };
+                    Vec::<i16>::try_from(t.contiguous().view_dtype(Kind::Int16).reshape([-1]))
+                        .unwrap()
+                })
+                .collect()
+        };
+        let run = |isa: Isa| -> Vec<Vec<i16>> {
+            // Values of their own (libtorch's generator is shared with tests running beside).
+            use rand::{Rng, SeedableRng};
+            let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
+            let mut randn = |shape: &[i64]| {
+                let n = shape.iter().product::<i64>() as usize;
+                let v: Vec<f32> = (0..n).map(|_| rng.gen_range(-2.0f32..2.0)).collect();
+                Tensor::from_slice(&v).view(shape)
+            };
+            with_widest(isa, || {
+                let mut out = vec![];
+                for kind in [Kind::BFloat16, Kind::Float] {
+                    // Odd widths, so that every loop has a remainder.
+                    let z = randn(&[3, 5, 37]).to_kind(kind);
+                    assert!(bias_relu_(&z, &randn(&[3, 1, 37]), true));
+                    let (w, bias) = (randn(&[3, 37, 1]), randn(&[3, 1, 1]));
+                    let q = one_output(&z, &w, &bias).unwrap();
+                    let (dw, db, db_below) =
+                        (randn(&[3, 37, 1]), randn(&[3, 1, 1]), randn(&[3, 1, 37]));
+                    let dz = one_output_backward(&q, &z, &w, &dw, &db, &db_below).unwrap();
+                    let dh = randn(&[3, 5, 37]).to_kind(kind);
+                    let db1 = randn(&[3, 1, 37]);
+                    assert!(relu_backward_(&dh, &z, &db1));
+                    out.extend([z, q, dw, db, db_below, dz, dh, db1]);
+                }
+                let sum = randn(&[2, 41]);
+                assert!(add_bf16_(&sum, &randn(&[2, 41]).to_kind(Kind::BFloat16)));
+                out.extend([sum.shallow_clone(), to_bf16(&(sum * 1e3)).unwrap()]);
+                all(&out)
+            })
+        };
+        let widest = run(Isa::Avx512);
+        for isa in [Isa::Avx2, Isa::Plain] {
+            let other = run(isa);
+            for (i, (a, b)) in other.iter().zip(&widest).enumerate() {
+                let first = a.iter().zip(b).position(|(x, y)| x != y);
+                assert!(first.is_none(), "{isa:?}: tensor {i} differs at {first:?}");
+            }
+        }
     }
 
     /// Where a kernel does not apply it leaves everything as it was and says so.
