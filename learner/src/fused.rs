@@ -3,10 +3,10 @@
 //! libtorch runs each element-wise step of a layer as its own pass, and with bf16 slowly
 //! (0.3–0.9 ms per step on a critic layer's `[10, 256, 256]` at one thread on a Xeon, where the
 //! pass itself needs tens of microseconds). These kernels do a layer's bias and ReLU, or a
-//! backward's mask, product and sums, in one pass over contiguous CPU memory, compiled for AVX-512
-//! or AVX2 where the CPU has them. Each one checks its tensors and does nothing where it does not apply
-//! (another device, layout or element type, or an output that autograd tracks): the caller then
-//! takes the tensor operations, which compute the same thing.
+//! backward's mask, product and sums, in one pass over contiguous CPU memory, compiled for
+//! AVX-512 or AVX2 where the CPU has them. Each one checks its tensors and does nothing where it
+//! does not apply (another device, layout or element type, or an output that autograd tracks):
+//! the caller then takes the tensor operations, which compute the same thing.
 //!
 //! bf16 rounding is libtorch's: to nearest, ties to even (and NaN to a NaN). Sums run in f32.
 
@@ -88,10 +88,11 @@ fn dims3(t: &Tensor) -> Option<(usize, usize, usize)> {
 }
 
 /// `vectorised! { fn name<T>(args) { body } }` (`<T>`, an [`Elem`], optional) defines `name`,
-/// which runs `body` compiled for AVX-512 where the CPU has it (its loops then run sixteen lanes wide: 1.2× the whole bf16
-/// update at two threads on a Xeon, against AVX2), else for AVX2 (eight), else as it is; without
-/// FMA, so that every CPU rounds alike. (A body passed as a closure is not reliably inlined into a
-/// `#[target_feature]` function, and compiled on its own it gets no AVX2.)
+/// which runs `body` compiled for AVX-512 where the CPU has it (its loops then run sixteen lanes
+/// wide: 1.2× the whole bf16 update at two threads on a Xeon, against AVX2), else for AVX2
+/// (eight), else as it is; without FMA, so that every CPU rounds alike. (A body passed as a
+/// closure is not reliably inlined into a `#[target_feature]` function, and compiled on its own
+/// it gets no AVX2.)
 macro_rules! vectorised {
     ($(fn $name:ident $(<$t:ident>)? ($($arg:ident: $ty:ty),* $(,)?) $body:block)*) => {$(
         fn $name $(<$t: $crate::fused::Elem>)? ($($arg: $ty),*) {
@@ -615,19 +616,6 @@ mod tests {
     /// variant's results against libtorch are the other tests'; this one makes them all count.)
     #[test]
     fn every_instruction_set_computes_the_same_bits() {
-        let all = |t: &[Tensor]| -> Vec<Vec<i16>> {
-            t.iter()
-                .map(|t| {
-                    let t = if t.kind() == Kind::Float {
-                        t.view_dtype(Kind::Int)
-                    } else {
-                        t.shallow_clone()
-                    };
-                    Vec::<i16>::try_from(t.contiguous().view_dtype(Kind::Int16).reshape([-1]))
-                        .unwrap()
-                })
-                .collect()
-        };
         let run = |isa: Isa| -> Vec<Vec<i16>> {
             // Values of their own (libtorch's generator is shared with tests running beside).
             use rand::{Rng, SeedableRng};
@@ -656,7 +644,7 @@ mod tests {
                 let sum = randn(&[2, 41]);
                 assert!(add_bf16_(&sum, &randn(&[2, 41]).to_kind(Kind::BFloat16)));
                 out.extend([sum.shallow_clone(), to_bf16(&(sum * 1e3)).unwrap()]);
-                all(&out)
+                out.iter().map(bits).collect()
             })
         };
         let widest = run(Isa::Avx512);

@@ -52,12 +52,11 @@ impl Adam {
         if self.step_in_parts(params, average, &c) {
             return;
         }
-        let mut targets = average.map(|(t, _)| t.iter());
-        let weight = average.map_or(0.0, |(_, w)| w);
+        let mut targets = average.map(|(t, weight)| (t.iter(), weight));
         self.each_param(params, |p, g, m, v| {
             let target = targets
                 .as_mut()
-                .map(|t| (*t.next().expect("a target"), weight));
+                .map(|(t, weight)| (*t.next().expect("a target"), *weight));
             // The one-pass step clears the gradient as it goes.
             if target.is_some() && fused_step_in_place(p, g, m, v, target, &c) {
                 return true;
