@@ -4,6 +4,7 @@ use anyhow::Result;
 use clap::{Args, Subcommand};
 use rand::{Rng, SeedableRng};
 use selkd_learner::config::{AlgoConfig, Precision, Regulariser, Sharing};
+use selkd_learner::matmul::CpuGemm;
 use std::time::Instant;
 
 #[derive(Subcommand, Debug)]
@@ -59,6 +60,9 @@ pub struct LearnerBench {
     /// libtorch on one each.
     #[arg(long, default_value_t = 0)]
     threads: usize,
+    /// Who multiplies the critics' fp32 matrices, as `run.cpu_gemm`: auto, libtorch or gemm.
+    #[arg(long, default_value = "auto")]
+    cpu_gemm: String,
     /// AVTD: this many variants side by side (none, layer-norm, weight-decay, then again), each
     /// with K = 1 and N critics; 0: not AVTD.
     #[arg(long, default_value_t = 0)]
@@ -82,6 +86,12 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
                 );
             }
             selkd_learner::threads::set(b.threads);
+            selkd_learner::matmul::set(match b.cpu_gemm.as_str() {
+                "auto" => CpuGemm::Auto,
+                "libtorch" => CpuGemm::Libtorch,
+                "gemm" => CpuGemm::Gemm,
+                other => anyhow::bail!("--cpu-gemm {other}: use auto, libtorch or gemm"),
+            });
             let critic_matmul = match b.critic_matmul.as_str() {
                 "fp32" => Precision::Fp32,
                 "bf16" => Precision::Bf16,
@@ -119,10 +129,10 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
                 * r.rounds_per_sec
                 / 1e9;
             println!(
-                "K={} N={} M={} G={}{} batch={} obs={} act={} hidden={} {} {} on {} ({}, {} threads): {:.1} rounds/s, {gflops:.1} GFLOP/s in matmuls",
+                "K={} N={} M={} G={}{} batch={} obs={} act={} hidden={} {} {} on {} ({}, {} threads, fp32 products by {}): {:.1} rounds/s, {gflops:.1} GFLOP/s in matmuls",
                 b.k, b.n, b.m, b.g,
                 if b.variants > 0 { format!(" V={}", b.variants) } else { String::new() }, b.batch, b.obs, b.act, b.hidden, b.sharing, b.critic_matmul, b.device,
-                selkd_learner::service::cpu_model(), selkd_learner::threads::get(), r.rounds_per_sec
+                selkd_learner::service::cpu_model(), selkd_learner::threads::get(), selkd_learner::matmul::chosen().describe(), r.rounds_per_sec
             );
             println!("{:.2} updates/s", r.critic_updates_per_sec);
         }

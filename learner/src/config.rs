@@ -31,6 +31,8 @@ pub struct RunConfig {
     pub device: String,
     /// Threads for the learner (0 = one per core); see `threads`.
     pub threads: usize,
+    /// Who multiplies the critics' fp32 matrices on CPU; see `matmul`.
+    pub cpu_gemm: crate::matmul::CpuGemm,
     /// Write a checkpoint every this many env steps (0 = only at the end).
     pub checkpoint_every: u64,
     /// Include the replay buffer in checkpoints (large; lets a resumed run continue exactly).
@@ -206,6 +208,7 @@ impl Default for RunConfig {
             mode: Mode::Sync,
             device: "cpu".into(),
             threads: 0,
+            cpu_gemm: crate::matmul::CpuGemm::Auto,
             checkpoint_every: 50_000,
             checkpoint_replay: false,
             keep_checkpoints: 3,

@@ -1,6 +1,7 @@
 //! Stacked MLP ensembles: E networks of one shape held as weights `[E, in, out]` and biases
 //! `[E, 1, out]`, evaluated for all members at once with batched matmuls.
 
+use crate::matmul::{self, CpuGemm};
 use crate::{fused, threads};
 use rand::Rng;
 use rand_pcg::Pcg64;
@@ -34,6 +35,12 @@ pub struct Ensemble {
     /// Element type the matmuls run in: `Float`, or `BFloat16` (bf16 inputs, fp32 accumulation
     /// and fp32 master weights) where the CPU or GPU has fast bf16 units.
     pub matmul: Kind,
+    /// Who multiplies fp32 matrices on CPU where autograd is not recording ([`matmul`]);
+    /// libtorch unless set. Where autograd records, libtorch multiplies whatever this says, so
+    /// `Gemm` suits an ensemble none of whose evaluations autograd records (the critics), and
+    /// an ensemble evaluated both ways keeps `Libtorch`, whose values are then the same both
+    /// ways (an actor's KL to itself stays exactly 0).
+    pub cpu_gemm: CpuGemm,
     /// AVTD's layer-norm variants: `[E, 1, 1]` booleans, true for the members whose hidden layers
     /// are normalised (before each ReLU, no learned scale or shift); `None`: no member is.
     pub layer_norm: Option<Tensor>,
@@ -62,6 +69,7 @@ impl Ensemble {
         Self {
             layers,
             matmul: Kind::Float,
+            cpu_gemm: CpuGemm::Libtorch,
             layer_norm: None,
         }
     }
@@ -179,7 +187,7 @@ impl Ensemble {
         }
         // The bias and ReLU in one pass over the product (`baddbmm` would first copy the bias
         // into every row, and the ReLU be a third pass).
-        let mut z = h.bmm(w);
+        let mut z = matmul::bmm(self.cpu_gemm, h, w);
         if fused::bias_relu_(&z, &layer.bias, relu) {
             return (z, relu);
         }
@@ -281,7 +289,7 @@ impl Ensemble {
                             .transpose(1, 2),
                     );
                 } else if train && self.matmul == Kind::Float {
-                    let _ = dw.baddbmm_(&input_l.transpose(1, 2), &dz);
+                    matmul::baddbmm_(self.cpu_gemm, &dw, &input_l.transpose(1, 2), &dz);
                 } else if train {
                     // The bf16 product is added onto the fp32 gradient.
                     let product = input_l.transpose(1, 2).bmm(&dz);
@@ -296,7 +304,7 @@ impl Ensemble {
                         // In the element type of the layer's input, which the mask below keeps.
                         dz.to_kind(input_l.kind()) * w_t.to_kind(input_l.kind())
                     } else {
-                        dz.bmm(&w_t)
+                        matmul::bmm(self.cpu_gemm, &dz, &w_t)
                     };
                     if l == 0 {
                         return Some(dh.to_kind(Kind::Float));
@@ -446,6 +454,7 @@ impl Ensemble {
                 })
                 .collect(),
             matmul: self.matmul,
+            cpu_gemm: self.cpu_gemm,
             // The flags follow the members (`f` selects, narrows or copies along dimension 0).
             layer_norm: self.layer_norm.as_ref().map(&f),
         }
@@ -650,16 +659,21 @@ mod tests {
 
     /// Every parameter's gradient from [`Ensemble::backward`] against libtorch's autograd on the
     /// same forward: one- and two-column outputs, inputs shared by every member (expanded, as
-    /// the critics get them) or each member's own, and added onto gradients already there.
+    /// the critics get them) or each member's own, and added onto gradients already there; with
+    /// the hand path's products by libtorch and by the `gemm` crate (autograd's by libtorch).
     #[test]
     fn the_hand_backward_matches_autograd() {
-        for (dims, shared) in [
-            (vec![5, 16, 12, 1], true),
-            (vec![5, 16, 12, 1], false),
-            (vec![3, 8, 2], false),
+        for (dims, shared, cpu_gemm) in [
+            (vec![5, 16, 12, 1], true, CpuGemm::Libtorch),
+            (vec![5, 16, 12, 1], false, CpuGemm::Libtorch),
+            (vec![3, 8, 2], false, CpuGemm::Libtorch),
+            (vec![5, 16, 12, 1], true, CpuGemm::Gemm),
+            (vec![5, 16, 12, 1], false, CpuGemm::Gemm),
+            (vec![3, 8, 2], false, CpuGemm::Gemm),
         ] {
             let mut rng = Pcg64::seed_from_u64(11);
-            let ens = Ensemble::new(3, &dims, Device::Cpu, &mut rng);
+            let mut ens = Ensemble::new(3, &dims, Device::Cpu, &mut rng);
+            ens.cpu_gemm = cpu_gemm;
             let x = if shared {
                 Tensor::randn([1, 7, dims[0] as i64], (Kind::Float, Device::Cpu))
                     .expand([3, 7, dims[0] as i64], false)
@@ -684,7 +698,7 @@ mod tests {
                 assert!(scale > 1e-3, "parameter {l} has no gradient to compare");
                 assert!(
                     err <= 1e-5 * scale,
-                    "{dims:?} shared {shared}: parameter {l} off by {err} (scale {scale})"
+                    "{dims:?} shared {shared} {cpu_gemm:?}: parameter {l} off by {err} (scale {scale})"
                 );
             }
         }
@@ -724,9 +738,14 @@ mod tests {
     /// same loss; an ensemble with layer norm takes the autograd path and gets the same answer.
     #[test]
     fn regress_gives_each_members_squared_error_and_its_gradient() {
-        for layer_norm in [false, true] {
+        for (layer_norm, cpu_gemm) in [
+            (false, CpuGemm::Libtorch),
+            (true, CpuGemm::Libtorch),
+            (false, CpuGemm::Gemm),
+        ] {
             let mut rng = Pcg64::seed_from_u64(12);
             let mut ens = Ensemble::new(2, &[4, 10, 10, 1], Device::Cpu, &mut rng);
+            ens.cpu_gemm = cpu_gemm;
             if layer_norm {
                 ens = ens.with_layer_norm(&[true, false]);
             }

@@ -64,7 +64,7 @@ unsafe fn elems<'a, T: Elem>(t: &'a Tensor, n: usize) -> Option<&'a mut [T]> {
 
 /// Whether the kernels may compute from `inputs` behind autograd's back: a result of theirs
 /// would not be tracked now (grad mode off, or none of them needs a gradient).
-fn untracked(inputs: &[&Tensor]) -> bool {
+pub(crate) fn untracked(inputs: &[&Tensor]) -> bool {
     !grad_mode() || inputs.iter().all(|t| !t.requires_grad())
 }
 

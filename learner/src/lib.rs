@@ -11,6 +11,7 @@ pub mod distillation;
 pub mod dpp;
 pub mod ensemble;
 pub mod fused;
+pub mod matmul;
 pub mod optim;
 pub mod ranking;
 pub mod rate_limit;

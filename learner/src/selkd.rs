@@ -142,6 +142,10 @@ impl Selkd {
         if cfg.critic_matmul == crate::config::Precision::Bf16 {
             critics.matmul = Kind::BFloat16;
         }
+        // `run.cpu_gemm` for critics that autograd never records (see `Ensemble::cpu_gemm`).
+        if critics.has_hand_backward() {
+            critics.cpu_gemm = crate::matmul::chosen();
+        }
         let target_critics = critics.copy();
         let target_actors = (cfg.backbone == Backbone::Td3).then(|| actors.copy());
         let log_alpha =

@@ -104,6 +104,7 @@ impl Learner {
         let spec = cfg.env_spec()?;
         let device = parse_device(&cfg.run.device)?;
         crate::threads::set(cfg.run.threads);
+        crate::matmul::set(cfg.run.cpu_gemm);
         let k = cfg.algo.actors;
         if k > MAX_ACTORS || cfg.algo.hidden.len() > MAX_HIDDEN_LAYERS {
             bail!("this build supports at most {MAX_ACTORS} actors and {MAX_HIDDEN_LAYERS} hidden layers");

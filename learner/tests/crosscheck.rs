@@ -20,6 +20,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use selkd_learner::config::{ActorQ, AlgoConfig, Backbone, Sharing};
 use selkd_learner::ensemble::Ensemble;
+use selkd_learner::matmul::CpuGemm;
 use selkd_learner::optim::Adam;
 use selkd_learner::replay::{Batch, ReplayBuffer};
 use selkd_learner::selkd::{Draw, RoundStats, Selkd};
@@ -398,6 +399,17 @@ fn two_rounds_match_an_independent_pytorch_implementation() {
             cases_json.push(run_case(&name, cfg, *best, 10 + i as u64 + 1000 * round));
         }
     }
+    // The cases above multiply the critics' fp32 matrices as `run.cpu_gemm = "auto"` chooses on
+    // this CPU; the first case again with the other choice, so that both are checked anywhere.
+    let other = match CpuGemm::Auto.resolved() {
+        CpuGemm::Gemm => CpuGemm::Libtorch,
+        _ => CpuGemm::Gemm,
+    };
+    selkd_learner::matmul::set(other);
+    let (name, cfg, best) = &cases()[0];
+    let name = format!("{name}, fp32 products by {}", other.describe());
+    cases_json.push(run_case(&name, cfg, *best, 10));
+    selkd_learner::matmul::set(CpuGemm::Auto);
     let cases = cases_json;
     let work = std::env::temp_dir().join(format!("selkd-crosscheck-{}", std::process::id()));
     std::fs::create_dir_all(&work).unwrap();

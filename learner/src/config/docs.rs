@@ -9,6 +9,7 @@ pub const KEY_DOCS: &[(&str, &str)] = &[
     ("run.mode", "sync: Algorithm 1's lockstep rounds, reproducible on CPU; async: workers step freely, the learner holds G updates per K transitions"),
     ("run.device", "the learner's device: cpu, cuda or cuda:N"),
     ("run.threads", "threads for the learner (0 = one per core): its critics' members split over them, libtorch on one each"),
+    ("run.cpu_gemm", "who multiplies the critics' fp32 matrices on CPU: auto (libtorch's MKL on Intel CPUs, the gemm crate on others, where MKL is slower), libtorch, gemm"),
     ("run.checkpoint_every", "env steps between checkpoints (0 = only the final one)"),
     ("run.checkpoint_replay", "also store the replay buffer, so a resumed run trains on the data it had"),
     ("run.keep_checkpoints", "periodic checkpoints kept, the newest (final is always kept)"),
