@@ -268,6 +268,104 @@ mod tests {
         assert!((w.grad() - want).abs().max().double_value(&[]) < 1e-3);
     }
 
+    /// `gemm`'s product of each member, called directly on contiguous copies, added onto `onto`.
+    fn gemm_directly(a: &Tensor, b: &Tensor, onto: Option<&Tensor>) -> Tensor {
+        let (e, m, k) = dims(a);
+        let n = dims(b).2;
+        let (a, b) = (a.contiguous(), b.contiguous());
+        let (av, bv) = (
+            Vec::<f32>::try_from(a.view([-1])).unwrap(),
+            Vec::<f32>::try_from(b.view([-1])).unwrap(),
+        );
+        let mut cv = match onto {
+            Some(c) => Vec::<f32>::try_from(c.contiguous().view([-1])).unwrap(),
+            None => vec![0.0; (e * m * n) as usize],
+        };
+        let (m, k, n) = (m as usize, k as usize, n as usize);
+        for x in 0..e as usize {
+            // SAFETY: each member's slices are exactly m·k, k·n and m·n long, row-major.
+            unsafe {
+                gemm::gemm(
+                    m,
+                    n,
+                    k,
+                    cv[x * m * n..].as_mut_ptr(),
+                    1,
+                    n as isize,
+                    onto.is_some(),
+                    av[x * m * k..].as_ptr(),
+                    1,
+                    k as isize,
+                    bv[x * k * n..].as_ptr(),
+                    1,
+                    n as isize,
+                    1.0f32,
+                    1.0f32,
+                    false,
+                    false,
+                    false,
+                    gemm::Parallelism::None,
+                );
+            }
+        }
+        Tensor::from_slice(&cv).view([e, m as i64, n as i64])
+    }
+
+    /// Each choice multiplies with its own library, bit for bit: `Libtorch` gives libtorch's
+    /// products, `Gemm` the `gemm` crate's (called directly here); where `gemm` does not apply
+    /// (bf16, an operand autograd records, an empty product), libtorch's whatever the choice.
+    #[test]
+    fn each_choice_multiplies_with_its_own_library() {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(9);
+        let (a, _) = random(&[2, 40, 300], &mut rng);
+        let (b, _) = random(&[2, 300, 24], &mut rng);
+        let (c0, _) = random(&[2, 40, 24], &mut rng);
+        let by_libtorch = a.bmm(&b);
+        let by_gemm = gemm_directly(&a, &b, None);
+        // Otherwise this test could not tell the two apart.
+        assert!(
+            !by_gemm.equal(&by_libtorch),
+            "gemm and libtorch gave the same bits"
+        );
+
+        assert!(bmm(CpuGemm::Libtorch, &a, &b).equal(&by_libtorch));
+        assert!(bmm(CpuGemm::Gemm, &a, &b).equal(&by_gemm));
+        let c = c0.copy();
+        baddbmm_(CpuGemm::Libtorch, &c, &a, &b);
+        assert!(c.equal(&c0.baddbmm(&a, &b, 1, 1)));
+        let c = c0.copy();
+        baddbmm_(CpuGemm::Gemm, &c, &a, &b);
+        assert!(c.equal(&gemm_directly(&a, &b, Some(&c0))));
+
+        // bf16 operands.
+        let (a16, b16) = (a.to_kind(Kind::BFloat16), b.to_kind(Kind::BFloat16));
+        assert!(bmm(CpuGemm::Gemm, &a16, &b16).equal(&a16.bmm(&b16)));
+        // An operand autograd records, with the product's graph kept.
+        let w = b.copy().set_requires_grad(true);
+        let out = bmm(CpuGemm::Gemm, &a, &w);
+        assert!(out.requires_grad() && out.equal(&by_libtorch));
+        let c = c0.copy();
+        baddbmm_(CpuGemm::Gemm, &c, &a, &w);
+        assert!(c.requires_grad() && c.equal(&c0.baddbmm(&a, &b, 1, 1)));
+        // Empty products: no rows, and no terms (zeros).
+        let none = Tensor::zeros([2, 0, 300], (Kind::Float, Device::Cpu));
+        assert_eq!(bmm(CpuGemm::Gemm, &none, &b).size(), [2, 0, 24]);
+        let (a0, b0) = (
+            Tensor::zeros([2, 40, 0], (Kind::Float, Device::Cpu)),
+            Tensor::zeros([2, 0, 24], (Kind::Float, Device::Cpu)),
+        );
+        let c = c0.copy();
+        baddbmm_(CpuGemm::Gemm, &c, &a0, &b0);
+        assert!(c.equal(&c0));
+        assert!(bmm(CpuGemm::Gemm, &a0, &b0).equal(&c0.zeros_like()));
+    }
+
+    #[test]
+    fn each_choice_names_its_library() {
+        assert_eq!(CpuGemm::Gemm.describe(), "the gemm crate");
+        assert_eq!(CpuGemm::Libtorch.describe(), "libtorch (MKL)");
+    }
+
     #[test]
     fn auto_takes_libtorch_on_intel_only() {
         assert_eq!(CpuGemm::Libtorch.resolved(), CpuGemm::Libtorch);

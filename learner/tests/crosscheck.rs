@@ -406,6 +406,7 @@ fn two_rounds_match_an_independent_pytorch_implementation() {
         _ => CpuGemm::Gemm,
     };
     selkd_learner::matmul::set(other);
+    assert_eq!(selkd_learner::matmul::chosen(), other);
     let (name, cfg, best) = &cases()[0];
     let name = format!("{name}, fp32 products by {}", other.describe());
     cases_json.push(run_case(&name, cfg, *best, 10));
