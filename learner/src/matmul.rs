@@ -1,10 +1,13 @@
 //! fp32 batched matrix products on CPU: libtorch's (Intel's MKL), or the `gemm` crate's.
 //!
 //! libtorch multiplies fp32 matrices with MKL, whose fastest code paths run on Intel CPUs only.
-//! On an AMD EPYC (Zen 4, AVX-512) a critic layer's `[10, 256, 256] × [10, 256, 256]` ran at
-//! 51–64 GFLOP/s there against 74–92 in the pure-Rust `gemm` crate (AVX-512, or AVX2 and FMA,
-//! chosen at run time on any vendor's CPU), one thread each, the same minutes. `run.cpu_gemm`
-//! chooses; its default, [`CpuGemm::Auto`], takes MKL on Intel CPUs and `gemm` on the others.
+//! On an AMD EPYC (Zen 4, AVX-512; one thread, runs interleaved, a noisy host) a critic layer's
+//! `[10, 256, 256]` products (forward, weight and input gradients) ran at 60–91 GFLOP/s in MKL
+//! and 78–100 in the pure-Rust `gemm` crate (AVX-512, or AVX2 and FMA, chosen at run time on
+//! any vendor's CPU), and with 1280 rows (the K = 5 target's) at 59–90 against 87–108: a whole
+//! update 1.09–1.14× faster. `run.cpu_gemm` chooses; its default, [`CpuGemm::Auto`], takes MKL
+//! on Intel CPUs, where it runs near the core's peak, and `gemm` on the others (on AMD CPUs
+//! without AVX-512, Zen 3 and older, this choice has not been measured).
 //! Both compute the same products, summed in other orders, so results agree to float32
 //! round-off, not bit for bit; one choice on one machine is reproducible.
 //!
