@@ -49,7 +49,7 @@ impl CpuGemm {
     }
 }
 
-static DEFAULT: AtomicU8 = AtomicU8::new(0);
+static DEFAULT: AtomicU8 = AtomicU8::new(CpuGemm::Auto as u8);
 
 /// Ensembles made from now on in this process multiply as `choice` says (a process runs one
 /// configuration, as with [`crate::threads::set`]).
@@ -59,9 +59,10 @@ pub fn set(choice: CpuGemm) {
 
 /// The choice [`set`] made ([`CpuGemm::Auto`] if none), resolved for this CPU.
 pub fn chosen() -> CpuGemm {
+    // Decoded by the variants' own discriminants, which `set` stored.
     match DEFAULT.load(Ordering::Relaxed) {
-        1 => CpuGemm::Libtorch,
-        2 => CpuGemm::Gemm,
+        x if x == CpuGemm::Libtorch as u8 => CpuGemm::Libtorch,
+        x if x == CpuGemm::Gemm as u8 => CpuGemm::Gemm,
         _ => CpuGemm::Auto,
     }
     .resolved()
