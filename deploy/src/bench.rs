@@ -1,11 +1,27 @@
 //! `selkd bench learner` and `selkd bench env`.
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use rand::{Rng, SeedableRng};
-use selkd_learner::config::{AlgoConfig, Precision, Regulariser, Sharing};
+use selkd_learner::config::{AlgoConfig, Config, Precision, Regulariser, Sharing};
 use selkd_learner::matmul::CpuGemm;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
+
+/// The names `--sharing` and `--critic-matmul` take, for the header line.
+fn sharing_name(s: Sharing) -> &'static str {
+    match s {
+        Sharing::PerUpdate => "per-update",
+        Sharing::PerCritic => "per-critic",
+    }
+}
+
+fn precision_name(p: Precision) -> &'static str {
+    match p {
+        Precision::Fp32 => "fp32",
+        Precision::Bf16 => "bf16",
+    }
+}
 
 #[derive(Subcommand, Debug)]
 pub enum BenchCommand {
@@ -67,73 +83,155 @@ pub struct LearnerBench {
     /// with K = 1 and N critics; 0: not AVTD.
     #[arg(long, default_value_t = 0)]
     variants: usize,
+    /// Bench a config file's own settings instead of the flags above: its `[algo]`, the sizes
+    /// of its `run.env`, its `run.device`, `run.threads` and `run.cpu_gemm`; then say how long
+    /// its budget of critic updates takes at the rate measured.
+    #[arg(long, conflicts_with_all = [
+        "k", "n", "m", "g", "batch", "obs", "act", "hidden", "sharing", "device",
+        "critic_matmul", "threads", "cpu_gemm", "variants",
+    ])]
+    config: Option<PathBuf>,
+    /// With --config: override one of its keys, as `selkd train --set` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE", requires = "config")]
+    set: Vec<String>,
+}
+
+/// What one `selkd bench learner` runs: the learner's settings, the env's sizes, the device,
+/// and (from a config file) the run's budget.
+struct Setup {
+    cfg: AlgoConfig,
+    obs: usize,
+    act: usize,
+    device: String,
+    budget: Option<Budget>,
+}
+
+/// A config file's budget, for the time estimate.
+struct Budget {
+    file: String,
+    total_env_steps: u64,
+    critic_updates: u64,
+}
+
+/// The settings of `selkd bench learner`'s flags, checked.
+fn from_flags(b: &LearnerBench) -> Result<Setup> {
+    let sharing = match b.sharing.as_str() {
+        "per-update" => Sharing::PerUpdate,
+        "per-critic" => Sharing::PerCritic,
+        other => anyhow::bail!("--sharing {other}: use per-update or per-critic"),
+    };
+    if b.m == 0 || b.m > b.n || b.k == 0 {
+        anyhow::bail!(
+            "need 1 ≤ --m ≤ --n and --k ≥ 1 (got k {}, n {}, m {})",
+            b.k,
+            b.n,
+            b.m
+        );
+    }
+    selkd_learner::threads::set(b.threads);
+    selkd_learner::matmul::set(match b.cpu_gemm.as_str() {
+        "auto" => CpuGemm::Auto,
+        "libtorch" => CpuGemm::Libtorch,
+        "gemm" => CpuGemm::Gemm,
+        other => anyhow::bail!("--cpu-gemm {other}: use auto, libtorch or gemm"),
+    });
+    let critic_matmul = match b.critic_matmul.as_str() {
+        "fp32" => Precision::Fp32,
+        "bf16" => Precision::Bf16,
+        other => anyhow::bail!("--critic-matmul {other}: use fp32 or bf16"),
+    };
+    if b.variants > 0 && b.k != 1 {
+        anyhow::bail!("--variants (AVTD) needs --k 1");
+    }
+    let cfg = AlgoConfig {
+        critic_matmul,
+        actors: b.k,
+        critics: b.n,
+        subset: b.m,
+        utd: b.g,
+        batch_size: b.batch,
+        hidden: vec![b.hidden, b.hidden],
+        sharing,
+        variants: [
+            Regulariser::None,
+            Regulariser::LayerNorm,
+            Regulariser::WeightDecay,
+        ]
+        .into_iter()
+        .cycle()
+        .take(b.variants)
+        .collect(),
+        ..AlgoConfig::default()
+    };
+    Ok(Setup {
+        cfg,
+        obs: b.obs,
+        act: b.act,
+        device: b.device.clone(),
+        budget: None,
+    })
+}
+
+/// The settings of a config file (validated as `selkd train` validates it), with `--set` applied.
+fn from_config(path: &Path, set: &[String]) -> Result<Setup> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("reading config {}", path.display()))?;
+    let cfg = Config::from_toml_with_overrides(&text, set)?;
+    let spec = cfg.env_spec()?;
+    selkd_learner::threads::set(cfg.run.threads);
+    selkd_learner::matmul::set(cfg.run.cpu_gemm);
+    Ok(Setup {
+        obs: spec.obs_dim,
+        act: spec.act_dim,
+        device: cfg.run.device.clone(),
+        budget: Some(Budget {
+            file: path.display().to_string(),
+            total_env_steps: cfg.run.total_env_steps,
+            critic_updates: cfg.critic_updates_in_budget(),
+        }),
+        cfg: cfg.algo,
+    })
 }
 
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Learner(b) => {
-            let sharing = match b.sharing.as_str() {
-                "per-update" => Sharing::PerUpdate,
-                "per-critic" => Sharing::PerCritic,
-                other => anyhow::bail!("--sharing {other}: use per-update or per-critic"),
+            let Setup {
+                cfg,
+                obs,
+                act,
+                device: device_name,
+                budget,
+            } = match &b.config {
+                Some(path) => from_config(path, &b.set)?,
+                None => from_flags(&b)?,
             };
-            if b.m == 0 || b.m > b.n || b.k == 0 {
-                anyhow::bail!(
-                    "need 1 ≤ --m ≤ --n and --k ≥ 1 (got k {}, n {}, m {})",
-                    b.k,
-                    b.n,
-                    b.m
-                );
-            }
-            selkd_learner::threads::set(b.threads);
-            selkd_learner::matmul::set(match b.cpu_gemm.as_str() {
-                "auto" => CpuGemm::Auto,
-                "libtorch" => CpuGemm::Libtorch,
-                "gemm" => CpuGemm::Gemm,
-                other => anyhow::bail!("--cpu-gemm {other}: use auto, libtorch or gemm"),
-            });
-            let critic_matmul = match b.critic_matmul.as_str() {
-                "fp32" => Precision::Fp32,
-                "bf16" => Precision::Bf16,
-                other => anyhow::bail!("--critic-matmul {other}: use fp32 or bf16"),
-            };
-            let cfg = AlgoConfig {
-                critic_matmul,
-                actors: b.k,
-                critics: b.n,
-                subset: b.m,
-                utd: b.g,
-                batch_size: b.batch,
-                hidden: vec![b.hidden, b.hidden],
-                sharing,
-                variants: [
-                    Regulariser::None,
-                    Regulariser::LayerNorm,
-                    Regulariser::WeightDecay,
-                ]
-                .into_iter()
-                .cycle()
-                .take(b.variants)
-                .collect(),
-                ..AlgoConfig::default()
-            };
-            if b.variants > 0 && b.k != 1 {
-                anyhow::bail!("--variants (AVTD) needs --k 1");
-            }
-            let device = selkd_learner::service::parse_device(&b.device)?;
+            let device = selkd_learner::service::parse_device(&device_name)?;
             selkd_learner::service::check_matmul(cfg.critic_matmul, device)?;
-            let r = selkd_learner::bench::learner(&cfg, b.obs, b.act, device, b.rounds);
+            let r = selkd_learner::bench::learner(&cfg, obs, act, device, b.rounds);
+            let variants = cfg.variants.len();
             // AVTD's round is V REDQ rounds' matmuls, stacked.
-            let gflops = selkd_learner::bench::flops_per_round(&cfg, b.obs, b.act)
-                * b.variants.max(1) as f64
+            let gflops = selkd_learner::bench::flops_per_round(&cfg, obs, act)
+                * variants.max(1) as f64
                 * r.rounds_per_sec
                 / 1e9;
             println!(
-                "K={} N={} M={} G={}{} batch={} obs={} act={} hidden={} {} {} on {} ({}, {} threads, fp32 products by {}): {:.1} rounds/s, {gflops:.1} GFLOP/s in matmuls",
-                b.k, b.n, b.m, b.g,
-                if b.variants > 0 { format!(" V={}", b.variants) } else { String::new() }, b.batch, b.obs, b.act, b.hidden, b.sharing, b.critic_matmul, b.device,
+                "K={} N={} M={} G={}{} batch={} obs={obs} act={act} hidden={} {} {} on {device_name} ({}, {} threads, fp32 products by {}): {:.1} rounds/s, {gflops:.1} GFLOP/s in matmuls",
+                cfg.actors, cfg.critics, cfg.subset, cfg.utd,
+                if variants > 0 { format!(" V={variants}") } else { String::new() }, cfg.batch_size,
+                cfg.hidden.iter().map(usize::to_string).collect::<Vec<_>>().join("x"),
+                sharing_name(cfg.sharing), precision_name(cfg.critic_matmul),
                 selkd_learner::service::cpu_model(), selkd_learner::threads::get(), selkd_learner::matmul::chosen().describe(), r.rounds_per_sec
             );
+            if let Some(budget) = budget {
+                println!(
+                    "{}: {} critic updates in run.total_env_steps = {}, about {} at this rate (the learner's time alone; evaluation and checkpoints add to it)",
+                    budget.file,
+                    budget.critic_updates,
+                    budget.total_env_steps,
+                    crate::progress::duration(budget.critic_updates as f64 / r.critic_updates_per_sec)
+                );
+            }
             println!("{:.2} updates/s", r.critic_updates_per_sec);
         }
         BenchCommand::Env {

@@ -501,6 +501,14 @@ impl Config {
         self.run.total_env_steps.div_ceil(self.algo.actors as u64)
     }
 
+    /// The critic updates a run makes in its budget: G per round, a round per env step of each
+    /// actor past the warm-up.
+    pub fn critic_updates_in_budget(&self) -> u64 {
+        self.steps_per_actor()
+            .saturating_sub(self.warmup_per_actor())
+            * self.algo.utd as u64
+    }
+
     /// The spec of `run.env` built with `[env_options]` (options may change its sizes).
     pub fn env_spec(&self) -> Result<selkd_envs::EnvSpec, selkd_envs::EnvError> {
         selkd_envs::make_with(&self.run.env, &self.env_options).map(|e| e.spec().clone())
@@ -652,6 +660,50 @@ mod tests {
             }
         }
         assert!(seen >= 10, "found {seen} configs");
+    }
+
+    /// Counted by hand: the paper's 300 000 env steps over K = 5 actors are 60 000 rounds, 1 000 of
+    /// them (5 000 env steps) warm-up, × G = 20; a budget inside the warm-up makes none.
+    #[test]
+    fn the_budget_counts_g_updates_per_round_past_the_warm_up() {
+        let budget = |sets: &[&str]| {
+            let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+            Config::from_toml_with_overrides("", &sets)
+                .unwrap()
+                .critic_updates_in_budget()
+        };
+        let paper = [
+            "run.total_env_steps=300000",
+            "algo.actors=5",
+            "algo.utd=20",
+            "algo.warmup_steps=5000",
+        ];
+        assert_eq!(budget(&paper), 1_180_000);
+        // K = 3: 12 000 / 3 = 4 000 rounds, 1 500 / 3 = 500 of them warm-up, × 3.
+        assert_eq!(
+            budget(&[
+                "run.total_env_steps=12000",
+                "algo.actors=3",
+                "algo.utd=3",
+                "algo.warmup_steps=1500",
+                "algo.batch_size=128",
+            ]),
+            10_500
+        );
+        // Uneven shares round up: 1 001 env steps over 2 actors are 501 each, warm-up 300 → 150.
+        assert_eq!(
+            budget(&[
+                "run.total_env_steps=1001",
+                "algo.actors=2",
+                "algo.utd=1",
+                "algo.warmup_steps=300",
+            ]),
+            351
+        );
+        assert_eq!(
+            budget(&["run.total_env_steps=4000", "algo.warmup_steps=5000"]),
+            0
+        );
     }
 
     #[test]

@@ -58,3 +58,60 @@ fn bench_env_steps_the_env_with_its_options() {
         assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
     }
 }
+
+fn bench_learner(args: &[&str]) -> (bool, String, String) {
+    let mut c = Command::new(bin("selkd"));
+    c.args(["bench", "learner", "--rounds", "2"]).args(args);
+    c.current_dir(env!("CARGO_MANIFEST_DIR")).current_dir("..");
+    let out = run(c);
+    let text = |b: &[u8]| String::from_utf8_lossy(b).to_string();
+    (out.status.success(), text(&out.stdout), text(&out.stderr))
+}
+
+/// `--config` benches the file's own sizes (configs/quick.toml: K = 3, N = 4, M = 2, G = 3, batch
+/// 128, 64 × 64, Pendulum's 3 observations and 1 action) and says what its budget of critic
+/// updates takes: 12 000 env steps over 3 actors, 500 rounds each of them warm-up, × G = 3.
+#[test]
+fn bench_learner_with_a_config_benches_its_sizes_and_prices_its_budget() {
+    let (ok, out, err) = bench_learner(&["--config", "configs/quick.toml"]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("K=3 N=4 M=2 G=3 batch=128 obs=3 act=1 hidden=64x64 per-update fp32 on cpu"),
+        "{out}"
+    );
+    assert!(
+        out.contains(
+            "configs/quick.toml: 10500 critic updates in run.total_env_steps = 12000, about "
+        ),
+        "{out}"
+    );
+    assert!(out.lines().last().unwrap().ends_with(" updates/s"), "{out}");
+    // --set applies on top, as in `selkd train`: G = 5 makes 3 500 × 5 updates, on hopper's sizes.
+    let (ok, out, err) = bench_learner(&[
+        "--config",
+        "configs/quick.toml",
+        "--set",
+        "algo.utd=5",
+        "--set",
+        "run.env=hopper",
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.contains("G=5 batch=128 obs=11 act=3"), "{out}");
+    assert!(out.contains(": 17500 critic updates"), "{out}");
+    for (args, want) in [
+        (
+            vec!["--config", "configs/quick.toml", "--k", "5"],
+            "cannot be used with",
+        ),
+        (vec!["--set", "algo.utd=5"], "--config"),
+        (
+            vec!["--config", "configs/quick.toml", "--set", "algo.subset=9"],
+            "algo.subset",
+        ),
+        (vec!["--config", "configs/nope.toml"], "configs/nope.toml"),
+    ] {
+        let (ok, _, err) = bench_learner(&args);
+        assert!(!ok && err.contains(want), "{args:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+    }
+}
