@@ -277,8 +277,12 @@ fn resolve_resume(r: &Path) -> Result<PathBuf> {
 }
 
 /// Children die with the launcher, even when it is SIGKILLed: an orphaned learner would go on
-/// writing into a run directory that a resumed run then shares.
+/// writing into a run directory that a resumed run then shares. Each leads a process group of
+/// its own, so that a terminal's Ctrl-C (or `timeout`), which signals the launcher's whole group,
+/// reaches the launcher alone, and it stops the run in order: a worker killed by the signal
+/// itself would be reported dead and restarted on the way out.
 fn die_with_parent(c: &mut Command) {
+    c.process_group(0);
     unsafe {
         c.pre_exec(|| {
             if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {

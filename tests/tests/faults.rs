@@ -250,17 +250,22 @@ fn a_worker_that_does_not_fit_the_run_is_refused_with_a_clear_error() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Starts a long run, waits until it has `steps` env steps, and sends `signal` to `selkd`.
+/// Starts a long run, waits until it has `steps` env steps, and sends `signal` to `selkd`, or
+/// with `group` to its whole process group, as a terminal's Ctrl-C does (selkd leads a group of
+/// its own here, as a shell's job does).
 /// Returns (exit code, selkd's stderr after the first line, run id).
 fn stop_a_run_with(
     dir: &std::path::Path,
     signal: i32,
+    group: bool,
     steps: u64,
 ) -> (Option<i32>, String, String) {
-    let mut child = spawn(train(
+    let mut command = train(
         dir,
         &small_run(&["algo.actors=2", "run.total_env_steps=1000000"]),
-    ));
+    );
+    std::os::unix::process::CommandExt::process_group(&mut command, 0);
+    let mut child = spawn(command);
     let (run_id, mut stderr) = run_id(&mut child);
     let t0 = Instant::now();
     while env_steps_so_far(dir) < steps {
@@ -271,7 +276,8 @@ fn stop_a_run_with(
         );
         std::thread::sleep(Duration::from_millis(100));
     }
-    unsafe { libc::kill(child.id() as i32, signal) };
+    let pid = child.id() as i32;
+    unsafe { libc::kill(if group { -pid } else { pid }, signal) };
     let mut rest = String::new();
     std::io::Read::read_to_string(&mut stderr, &mut rest).unwrap();
     let status = child.wait().unwrap();
@@ -280,17 +286,32 @@ fn stop_a_run_with(
 
 /// Ctrl-C, SIGTERM (kill, timeout, systemd, docker, Slurm) and SIGHUP (a closed terminal) each
 /// stop the run the same way: a final checkpoint, no process left, no panic, exit 128 + signal.
+/// A terminal's Ctrl-C (and `timeout`) signals selkd's whole process group: the learner and the
+/// workers are in groups of their own, so selkd alone decides how they stop, and no worker dies
+/// of the signal and gets restarted on the way out.
 #[test]
 fn ctrl_c_sigterm_and_sighup_stop_everything_cleanly_with_a_checkpoint() {
-    for (signal, code) in [
-        (libc::SIGINT, 130),
-        (libc::SIGTERM, 143),
-        (libc::SIGHUP, 129),
+    for (signal, group, code) in [
+        (libc::SIGINT, false, 130),
+        (libc::SIGINT, true, 130),
+        (libc::SIGTERM, false, 143),
+        (libc::SIGHUP, false, 129),
     ] {
-        let dir = temp_dir(&format!("stop{signal}"));
-        let (status, rest, run_id) = stop_a_run_with(&dir, signal, 1000);
+        let dir = temp_dir(&format!("stop{signal}{group}"));
+        let (status, rest, run_id) = stop_a_run_with(&dir, signal, group, 1000);
         assert_eq!(status, Some(code), "signal {signal}: {rest}");
         assert!(rest.contains("stopped; checkpoint at"), "{rest}");
+        assert!(
+            !rest.contains("died"),
+            "signal {signal}, group {group}: {rest}"
+        );
+        for w in 0..2 {
+            let worker = log(&dir, &format!("worker-{w}.log"));
+            assert!(
+                worker.contains("learner asked to stop"),
+                "signal {signal}, group {group}: worker {w} did not leave on the learner's order: {worker}"
+            );
+        }
         let state: serde_json::Value = serde_json::from_str(
             &std::fs::read_to_string(dir.join("checkpoints/final/state.json")).unwrap(),
         )
@@ -312,7 +333,7 @@ fn ctrl_c_sigterm_and_sighup_stop_everything_cleanly_with_a_checkpoint() {
 #[test]
 fn a_stopped_run_resumed_in_place_continues_its_metrics_one_row_per_epoch() {
     let dir = temp_dir("resume-in-place");
-    let (status, rest, _) = stop_a_run_with(&dir, libc::SIGTERM, 1500);
+    let (status, rest, _) = stop_a_run_with(&dir, libc::SIGTERM, false, 1500);
     assert_eq!(status, Some(143), "{rest}");
     let mut more = small_run(&["algo.actors=2", "run.total_env_steps=4000"]);
     more.extend([
