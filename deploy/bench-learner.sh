@@ -12,6 +12,7 @@
 #             fp32 and bf16 at K = 1 and K = 5; bf16 only where the CPU has native bf16, or on cuda)
 #   PYTHON    the Python that runs the peer (default: python3 with the libtorch wheel that
 #             deploy/setup.sh installed on its path)
+#   SELKD     the selkd binary (default target/release/selkd)
 # Prints one line per run as it finishes, then a Markdown table for the README's Performance section.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -19,8 +20,9 @@ rounds=${1:-3}
 peer=${2:-../shared/bench/redq_style_update.py}
 threads=${THREADS:-1 2}
 device=${DEVICE:-cpu}
+selkd=${SELKD:-target/release/selkd}
 [ -f "$peer" ] || { echo "bench-learner: no peer script at $peer; pass its path as the second argument" >&2; exit 1; }
-[ -x target/release/selkd ] || { echo "bench-learner: build first: cargo build --release" >&2; exit 1; }
+[ -x "$selkd" ] || { echo "bench-learner: no $selkd: build first (cargo build --release), or set SELKD" >&2; exit 1; }
 case "$rounds" in ''|*[!0-9]*|0) echo "bench-learner: ROUNDS must be a positive whole number, not '$rounds'" >&2; exit 1 ;; esac
 case "$device" in cpu|cuda|cuda:[0-9]*) ;; *) echo "bench-learner: DEVICE must be cpu or cuda, not '$device'" >&2; exit 1 ;; esac
 if [ -n "${PYTHON:-}" ]; then
@@ -64,7 +66,7 @@ for r in $(seq 1 "$rounds"); do
         for i in "${!variant_list[@]}"; do
             v=${variant_list[$i]}
             # shellcheck disable=SC2086 # a variant is a list of flags
-            out=$(target/release/selkd bench learner --threads "$t" --device "$device" $v 2>&1) \
+            out=$("$selkd" bench learner --threads "$t" --device "$device" $v 2>&1) \
                 || { echo "bench-learner: selkd bench learner $v failed:" >&2; echo "$out" | tail -5 >&2; exit 1; }
             ours=$(rate <<<"$out") || { echo "bench-learner: no rate from selkd bench learner $v" >&2; exit 1; }
             printf '%-5s %-7s %-40s %10s %7s\n' "$r" "$t" "selkd $v" "$ours" \
