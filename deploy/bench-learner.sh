@@ -4,8 +4,8 @@
 # every ratio is against the peer's run of the same round and threads (these machines are shared
 # and noisy: compare ratios within a sitting, never timings across sittings).
 #   bash deploy/bench-learner.sh [ROUNDS] [PEER]
-# PEER is the peer's script (default ../shared/bench/redq_style_update.py; a clone without it
-# passes its own copy). Settings, from the environment:
+# PEER is the peer's script (default deploy/peer/redq_style_update.py, in this repository).
+# Settings, from the environment:
 #   THREADS   thread counts to run at (default "1 2")
 #   DEVICE    cpu (default) or cuda, for both programs; with cuda, THREADS only sets the CPU side
 #   VARIANTS  `selkd bench learner` flag sets, ';'-separated, each shown as its own row (default:
@@ -17,7 +17,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 rounds=${1:-3}
-peer=${2:-../shared/bench/redq_style_update.py}
+peer=${2:-deploy/peer/redq_style_update.py}
 threads=${THREADS:-1 2}
 device=${DEVICE:-cpu}
 selkd=${SELKD:-target/release/selkd}

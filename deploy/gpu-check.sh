@@ -2,24 +2,21 @@
 # The learner's GPU measurement (`run.device = "cuda"`) as one command on a machine with an NVIDIA
 # GPU whose python3 holds PyTorch 2.11 with CUDA, where nothing is built: the binaries travel,
 # stripped, in .gpu/ (about 30 MB), and link the libtorch of that machine's PyTorch.
-#   bash deploy/gpu-check.sh pack        # here: release build; stripped binaries and the peer into .gpu/
+#   bash deploy/gpu-check.sh pack        # here: release build; stripped binaries into .gpu/
 #   bash deploy/gpu-check.sh run [DIR]   # there, from the clone's root with .gpu/ beside it
 # `run` prints the GPU, then the benchmark against the peer on the GPU (deploy/bench-learner.sh:
 # K = 1 and K = 5, fp32 and bf16, two rounds), then trains configs/paper.toml on hopper for
 # TRAIN_SECONDS (default 150) with run.device = cuda and prints its update rate over the last
 # 60 s. Everything goes to DIR (default $OUT, else gpu-check/): gpu-check.txt, and the training's
 # progress.jsonl and metrics.csv. DEVICE=cpu runs the same steps on the CPU, to try the script on a
-# machine without a GPU; PYTHON names another Python with torch; PEER the peer's script for `pack`.
+# machine without a GPU; PYTHON names another Python with torch.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 case "${1:-}" in
 pack)
-    peer=${PEER:-../shared/bench/redq_style_update.py}
-    [ -f "$peer" ] || { echo "gpu-check: no peer script at $peer; set PEER" >&2; exit 1; }
     cargo build --release --workspace --locked
     mkdir -p .gpu
     for b in selkd learner actor-worker; do strip -o ".gpu/$b" "target/release/$b"; done
-    cp "$peer" .gpu/redq_style_update.py
     echo "gpu-check: .gpu/ holds $(du -sh .gpu | cut -f1); carry it and run: bash deploy/gpu-check.sh run" >&2
     ;;
 run)
@@ -27,7 +24,7 @@ run)
     device=${DEVICE:-cuda}
     python=${PYTHON:-python3}
     seconds=${TRAIN_SECONDS:-150}
-    for b in selkd learner actor-worker redq_style_update.py; do
+    for b in selkd learner actor-worker; do
         [ -e ".gpu/$b" ] || { echo "gpu-check: .gpu/$b is missing: run bash deploy/gpu-check.sh pack first, and carry .gpu" >&2; exit 1; }
     done
     mkdir -p "$out"
@@ -43,7 +40,7 @@ run)
         "$python" -c 'import torch; print("torch", torch.__version__, "cuda", torch.version.cuda, "devices", torch.cuda.device_count())'
         echo "== the benchmark against the peer, on $device"
         SELKD=.gpu/selkd DEVICE=$device PYTHON=$python THREADS=1 \
-            bash deploy/bench-learner.sh 2 .gpu/redq_style_update.py
+            bash deploy/bench-learner.sh 2
         echo "== configs/paper.toml on hopper, run.device = $device, $seconds s"
         # SIGINT is a clean stop: the run checkpoints and the workers exit.
         timeout -s INT "$seconds" .gpu/selkd train --config configs/paper.toml --set run.env=hopper \
