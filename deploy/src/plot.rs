@@ -5,7 +5,7 @@
 //! actor's return with a ±½ sample-standard-deviation band, as the paper draws its curves. Runs
 //! are lined up on env steps (each interpolated onto one common grid, the same code as
 //! `selkd experiment report`, [`crate::report::align`]), not by CSV row, and runs of different
-//! envs or configs (anything but run.seed, run.threads, run.cpu_gemm, run.device) are refused,
+//! envs or configs (anything but run.seed, run.threads, run.cpu_gemm, run.device, run.dir_mode) are refused,
 //! naming them.
 //! `--metric success` draws the evaluation success rate instead (tasks with a success criterion,
 //! such as the assembly task).

@@ -173,7 +173,8 @@ pub fn run(mut args: TrainArgs) -> Result<i32> {
         (None, None) => PathBuf::from("runs").join(format!("{}-{stamp}", cfg.run.env)),
     };
     let created = !run_dir.exists();
-    std::fs::create_dir_all(run_dir.join("logs"))
+    selkd_learner::config::create_run_dir(&run_dir, cfg.run.dir_mode)
+        .and_then(|()| std::fs::create_dir_all(run_dir.join("logs")))
         .with_context(|| format!("creating run directory {}", run_dir.display()))?;
     // One launcher per run directory; the lock goes with the process, so a dead holder's is free.
     let _lock = lock_run_dir(&run_dir)?;
@@ -306,7 +307,7 @@ fn checkpoint_config(checkpoint: &Path) -> Result<String> {
 }
 
 /// One launcher per run directory (`RUN/.lock`, which names the holder's pid).
-fn lock_run_dir(run_dir: &Path) -> Result<std::fs::File> {
+fn lock_run_dir(run_dir: &Path) -> Result<selkd_protocol::lock::PidLock> {
     let path = run_dir.join(".lock");
     match selkd_protocol::lock::pid_lock(&path) {
         Ok(f) => Ok(f),

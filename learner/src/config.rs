@@ -42,6 +42,73 @@ pub struct RunConfig {
     /// Seconds a worker the run waits on (for a transition or an evaluation) may send nothing
     /// before it is reported, and `selkd train` kills and restarts it.
     pub worker_timeout: f64,
+    /// Permissions of a run directory this run creates (checkpoints of a private task are
+    /// data: by default only the owner may read them).
+    pub dir_mode: DirMode,
+}
+
+/// A directory's permission bits, written in a config as an octal string (`"0700"`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DirMode(pub u32);
+
+impl Default for DirMode {
+    fn default() -> Self {
+        DirMode(0o700)
+    }
+}
+
+impl std::fmt::Display for DirMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:04o}", self.0)
+    }
+}
+
+impl std::str::FromStr for DirMode {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let bits = u32::from_str_radix(s, 8).ok().filter(|b| *b <= 0o777);
+        match bits {
+            // The owner must be able to list, enter and write it: the run writes there.
+            Some(b) if b & 0o700 == 0o700 => Ok(DirMode(b)),
+            Some(_) => Err(format!(
+                "run.dir_mode = \"{s}\" takes the owner's own access away; the owner needs rwx (\"07xx\", e.g. \"0700\" or \"0750\")"
+            )),
+            None => Err(format!(
+                "run.dir_mode = \"{s}\" is not an octal mode; write it like \"0700\" (owner only) or \"0750\" (group may read)"
+            )),
+        }
+    }
+}
+
+impl Serialize for DirMode {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&self.to_string())
+    }
+}
+
+impl<'de> Deserialize<'de> for DirMode {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let s = String::deserialize(d)?;
+        s.parse().map_err(serde::de::Error::custom)
+    }
+}
+
+/// Makes a run directory (and missing parents) and, where it did not exist, gives it exactly
+/// `mode`, whatever the umask; an existing directory keeps the permissions its owner chose.
+pub fn create_run_dir(dir: &std::path::Path, mode: DirMode) -> std::io::Result<()> {
+    use std::os::unix::fs::PermissionsExt;
+    if dir.is_dir() {
+        return Ok(());
+    }
+    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)?;
+    }
+    match std::fs::create_dir(dir) {
+        Ok(()) => std::fs::set_permissions(dir, std::fs::Permissions::from_mode(mode.0)),
+        // Made meanwhile by another process (two array tasks of one experiment).
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && dir.is_dir() => Ok(()),
+        Err(e) => Err(e),
+    }
 }
 
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
@@ -216,6 +283,7 @@ impl Default for RunConfig {
             // env steps/s measured with another run beside it); six times that covers slower
             // machines.
             worker_timeout: 120.0,
+            dir_mode: DirMode::default(),
         }
     }
 }
@@ -642,6 +710,50 @@ mod tests {
         ] {
             assert!(!e.contains('\n'), "one line: {e}");
         }
+    }
+
+    #[test]
+    fn a_run_dir_mode_is_octal_keeps_the_owners_access_and_is_applied_despite_the_umask() {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = |s: &str| {
+            Config::from_toml_with_overrides("", &[format!("run.dir_mode=\"{s}\"")])
+                .map(|c| c.run.dir_mode.0)
+        };
+        assert_eq!(Config::default().run.dir_mode.0, 0o700);
+        assert_eq!(mode("0700").unwrap(), 448);
+        assert_eq!(mode("0750").unwrap(), 488);
+        assert_eq!(mode("755").unwrap(), 493);
+        for (bad, says) in [
+            ("0600", "owner needs rwx"),
+            ("0500", "owner needs rwx"),
+            ("0800", "not an octal mode"),
+            ("1777", "not an octal mode"),
+            ("rwx", "not an octal mode"),
+        ] {
+            let e = mode(bad).unwrap_err().to_string();
+            assert!(e.contains(says) && !e.contains('\n'), "{bad}: {e}");
+        }
+        let c = Config::from_toml_with_overrides("", &["run.dir_mode=\"0750\"".into()]).unwrap();
+        assert!(
+            c.to_toml().contains("dir_mode = \"0750\""),
+            "{}",
+            c.to_toml()
+        );
+        let root = std::env::temp_dir().join(format!("selkd-dir-mode-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        // A umask that would leave group and others write access must not matter.
+        let old = unsafe { libc::umask(0) };
+        let made = create_run_dir(&root.join("a/run"), DirMode(0o700));
+        unsafe { libc::umask(old) };
+        made.unwrap();
+        let bits = |p: &std::path::Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+        assert_eq!(bits(&root.join("a/run")), 0o700);
+        // An existing directory keeps what its owner chose.
+        std::fs::set_permissions(&root.join("a/run"), std::fs::Permissions::from_mode(0o755))
+            .unwrap();
+        create_run_dir(&root.join("a/run"), DirMode(0o700)).unwrap();
+        assert_eq!(bits(&root.join("a/run")), 0o755);
+        let _ = std::fs::remove_dir_all(&root);
     }
 
     #[test]

@@ -76,10 +76,13 @@ fn run(args: &Args) -> Result<Outcome> {
     learner.run(&args.run_id, stop)
 }
 
-/// One learner per run id: two would both accept the same workers (split brain).
-fn lock_run_id(run_id: &str) -> Result<std::fs::File> {
+/// One learner per run id: two would both accept the same workers (split brain). The lock lives
+/// in this user's private lock directory, never in the shared temp directory, where another
+/// local user could plant a link to a file of ours or hold the lock to block our runs.
+fn lock_run_id(run_id: &str) -> Result<selkd_protocol::lock::PidLock> {
     selkd_protocol::Services::new(run_id).transitions()?; // the run id must be a valid name
-    let path = std::env::temp_dir().join(format!("selkd-learner-{run_id}.lock"));
+    let dir = selkd_protocol::lock::user_lock_dir().context("the per-user lock directory")?;
+    let path = dir.join(format!("learner-{run_id}.lock"));
     match selkd_protocol::lock::pid_lock(&path) {
         Ok(f) => Ok(f),
         Err(selkd_protocol::lock::LockError::Held(pid)) => {
@@ -87,6 +90,6 @@ fn lock_run_id(run_id: &str) -> Result<std::fs::File> {
                 "run id `{run_id}` already has a learner (pid {pid}); pick another --run-id"
             )
         }
-        Err(e) => Err(e).with_context(|| format!("locking {}", path.display())),
+        Err(e) => Err(e).with_context(|| format!("locking run id `{run_id}`")),
     }
 }

@@ -119,7 +119,8 @@ impl Learner {
             ReplayBuffer::new(capacity as usize, spec.obs_dim, spec.act_dim, device)
         });
         let warmup_total = cfg.warmup_per_actor() * k as u64;
-        std::fs::create_dir_all(run_dir.join("checkpoints"))
+        crate::config::create_run_dir(run_dir, cfg.run.dir_mode)
+            .and_then(|()| std::fs::create_dir_all(run_dir.join("checkpoints")))
             .with_context(|| format!("creating {}", run_dir.display()))?;
         let metrics_path = run_dir.join("metrics.csv");
         let resumed = match resume {

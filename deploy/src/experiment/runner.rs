@@ -9,6 +9,7 @@ use super::state::{state, State};
 use super::RunArgs;
 use crate::progress::duration;
 use anyhow::{Context, Result};
+use selkd_learner::config::DirMode;
 use std::collections::{HashMap, VecDeque};
 use std::io::{IsTerminal, Read, Seek, SeekFrom};
 use std::path::Path;
@@ -22,15 +23,15 @@ struct Running {
     pid: i32,
     started: Instant,
     /// Held while the run trains (see [`lock`]).
-    _lock: std::fs::File,
+    _lock: selkd_protocol::lock::PidLock,
 }
 
 /// Claims a run directory for this process: an exclusive `flock` on `.selkd.lock`, or `None`
 /// when another `selkd experiment run` holds it (the same experiment started twice, or a Slurm
 /// array resubmitted while its first tasks still run). Two `selkd train` in one directory would
 /// each overwrite the other's checkpoints. The lock goes with this process, however it ends.
-fn lock(dir: &Path) -> Result<Option<std::fs::File>> {
-    std::fs::create_dir_all(dir)
+fn lock(dir: &Path, mode: DirMode) -> Result<Option<selkd_protocol::lock::PidLock>> {
+    selkd_learner::config::create_run_dir(dir, mode)
         .with_context(|| format!("creating run directory {}", dir.display()))?;
     let path = dir.join(".selkd.lock");
     match selkd_protocol::lock::pid_lock(&path) {
@@ -188,7 +189,7 @@ async fn schedule(
             let Some(i) = todo.pop_front() else {
                 break;
             };
-            let Some(lock) = lock(&runs[i].dir)? else {
+            let Some(lock) = lock(&runs[i].dir, runs[i].config.run.dir_mode)? else {
                 progress.clear();
                 eprintln!(
                     "selkd: run {} is being trained by another selkd (it holds {}); skipping it",

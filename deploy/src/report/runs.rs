@@ -1,8 +1,8 @@
 //! Reading run directories (`metrics.csv`, `config.toml`, the final checkpoint's `state.json`)
 //! and an experiment directory (`DIR/<method>/<task>/seed-<s>/`), and the checks that keep
 //! runs that must not be averaged apart: runs of different envs, or of configs that differ in
-//! anything but `run.seed`, `run.threads`, `run.cpu_gemm` and `run.device` (which change neither
-//! the task nor the algorithm).
+//! anything but `run.seed`, `run.threads`, `run.cpu_gemm`, `run.device` and `run.dir_mode`
+//! (which change neither the task nor the algorithm).
 
 use anyhow::{bail, Context, Result};
 use std::collections::BTreeMap;
@@ -244,7 +244,13 @@ fn comparable(config: &toml::Table) -> BTreeMap<String, String> {
             }
         }
     }
-    for k in ["run.seed", "run.threads", "run.cpu_gemm", "run.device"] {
+    for k in [
+        "run.seed",
+        "run.threads",
+        "run.cpu_gemm",
+        "run.device",
+        "run.dir_mode",
+    ] {
         out.remove(k);
     }
     out
@@ -265,8 +271,8 @@ pub fn check_same_env(runs: &[&Run]) -> Result<()> {
     Ok(())
 }
 
-/// Refuses runs whose configs differ in anything but run.seed, run.threads, run.cpu_gemm and
-/// run.device, naming the keys and, for each, the runs' values.
+/// Refuses runs whose configs differ in anything but run.seed, run.threads, run.cpu_gemm,
+/// run.device and run.dir_mode, naming the keys and, for each, the runs' values.
 pub fn check_same_config(runs: &[&Run]) -> Result<()> {
     check_same_env(runs)?;
     let first = comparable(&runs[0].config);
@@ -295,7 +301,7 @@ pub fn check_same_config(runs: &[&Run]) -> Result<()> {
         })
         .collect();
     bail!(
-        "runs with different configs cannot be averaged (only run.seed, run.threads, run.cpu_gemm and run.device may differ): {}",
+        "runs with different configs cannot be averaged (only run.seed, run.threads, run.cpu_gemm, run.device and run.dir_mode may differ): {}",
         list.join("; ")
     )
 }

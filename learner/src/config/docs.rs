@@ -14,6 +14,7 @@ pub const KEY_DOCS: &[(&str, &str)] = &[
     ("run.checkpoint_replay", "also store the replay buffer, so a resumed run trains on the data it had"),
     ("run.keep_checkpoints", "periodic checkpoints kept, the newest (final is always kept)"),
     ("run.worker_timeout", "seconds a worker the run waits on may send nothing before it is killed and restarted"),
+    ("run.dir_mode", "permissions of a run directory the run creates, octal: \"0700\" (only its owner: checkpoints are data) or e.g. \"0750\""),
     ("algo.backbone", "sac (stochastic actors, entropy bonus, KL distillation) or td3 (deterministic actors, squared action distance)"),
     ("algo.exploration_noise", "td3: std of the Gaussian noise on the workers' actions"),
     ("algo.target_noise", "td3: std of the target policy smoothing noise"),
