@@ -7,6 +7,9 @@ bash deploy/setup.sh
 bash deploy/test-deps.sh
 # The selkd Python package and its venv (tests/tests/python.rs runs its pytest files there).
 bash deploy/python.sh
+# Slurm and munge for tests/tests/slurm.rs (Debian's packages; needs root: elsewhere that test
+# says it is skipped).
+bash deploy/slurm.sh install || echo "test: Slurm could not be installed; tests/tests/slurm.rs will be skipped" >&2
 # The end-to-end tests start the real binaries: build them first, in the tests' profile.
 cargo build --release --workspace --locked
 log=$(mktemp)

@@ -12,47 +12,6 @@ use std::path::Path;
 use std::process::Child;
 use std::time::{Duration, Instant};
 
-/// metrics.csv without the columns that measure wall-clock time, as text (bit for bit).
-fn exact_metrics(dir: &Path) -> Vec<Vec<String>> {
-    let text = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
-    let rows: Vec<Vec<&str>> = text.lines().map(|l| l.split(',').collect()).collect();
-    let keep: Vec<usize> = (0..rows[0].len())
-        .filter(|&i| !["wall_s", "updates_per_s", "env_steps_per_s"].contains(&rows[0][i]))
-        .collect();
-    rows.iter()
-        .map(|r| keep.iter().map(|&i| r[i].to_string()).collect())
-        .collect()
-}
-
-/// The final checkpoint's files; state.json without its wall-clock time.
-fn final_checkpoint(dir: &Path) -> (Vec<u8>, Option<Vec<u8>>, serde_json::Value) {
-    let c = dir.join("checkpoints/final");
-    let mut state: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(c.join("state.json")).unwrap()).unwrap();
-    state.as_object_mut().unwrap().remove("wall_seconds");
-    (
-        std::fs::read(c.join("model.safetensors")).unwrap(),
-        std::fs::read(c.join("replay.safetensors")).ok(),
-        state,
-    )
-}
-
-fn assert_same_run(a: &Path, b: &Path, what: &str) {
-    let (ma, mb) = (exact_metrics(a), exact_metrics(b));
-    assert_eq!(ma.len(), mb.len(), "{what}: epochs differ");
-    for (ra, rb) in ma.iter().zip(&mb) {
-        assert_eq!(ra, rb, "{what}: metrics differ from the twin's");
-    }
-    let (wa, ra, sa) = final_checkpoint(a);
-    let (wb, rb, sb) = final_checkpoint(b);
-    assert_eq!(sa, sb, "{what}: final state.json differs from the twin's");
-    assert!(
-        ra == rb,
-        "{what}: final replay buffer differs from the twin's"
-    );
-    assert!(wa == wb, "{what}: final weights differ from the twin's");
-}
-
 fn wait_until(what: &str, dir: &Path, limit: Duration, mut done: impl FnMut() -> bool) {
     let t0 = Instant::now();
     while !done() {

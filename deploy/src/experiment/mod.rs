@@ -59,10 +59,15 @@ pub struct PlanArgs {
     /// Slurm partition (#SBATCH --partition).
     #[arg(long, requires = "slurm")]
     pub partition: Option<String>,
-    /// Slurm time limit per run, e.g. 12:00:00 (#SBATCH --time).
-    #[arg(long, requires = "slurm")]
-    pub time: Option<String>,
-    /// CPU cores per run (#SBATCH --cpus-per-task); each run's libtorch gets them all.
+    /// Slurm time limit per run (#SBATCH --time): a Slurm time such as 12:00:00 or 1-06:00:00;
+    /// `auto` (the default) measures each run's learner here and allows 1.5× its critic
+    /// updates' time plus 10 minutes; `none` leaves it to the cluster's default. A run that
+    /// reaches it stops with a checkpoint and is requeued, so a short limit costs restarts, not
+    /// work.
+    #[arg(long, requires = "slurm", default_value = "auto")]
+    pub time: String,
+    /// CPU cores per run (#SBATCH --cpus-per-task); default: the runs' `run.threads` (the
+    /// learner's threads; the workers wait on it in sync mode).
     #[arg(long, requires = "slurm")]
     pub cpus: Option<usize>,
     /// GPUs per run (#SBATCH --gres=gpu:G); set run.device = "cuda" in the experiment to use them.
