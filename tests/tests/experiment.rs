@@ -10,28 +10,6 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-/// A tiny Pendulum config (the sizes of `small_run`), as a method's config file.
-const TINY: &str = r#"
-[run]
-env = "pendulum"
-seed = 1
-threads = 1
-checkpoint_every = 1000
-
-[algo]
-actors = 2
-critics = 2
-subset = 2
-utd = 1
-batch_size = 64
-hidden = [32, 32]
-warmup_steps = 400
-
-[eval]
-epoch_env_steps = 500
-episodes = 1
-"#;
-
 /// An experiment directory with `tiny.toml` and `exp.toml` (the given experiment text).
 fn setup(tag: &str, experiment: &str) -> (PathBuf, PathBuf) {
     let root = temp_dir(tag);

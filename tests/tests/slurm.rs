@@ -10,32 +10,14 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-const TINY: &str = r#"
-[run]
-env = "pendulum"
-seed = 1
-threads = 1
-checkpoint_every = 500
-checkpoint_replay = true
-
-[algo]
-actors = 2
-critics = 2
-subset = 2
-utd = 1
-batch_size = 64
-hidden = [32, 32]
-warmup_steps = 400
-
-[eval]
-epoch_env_steps = 500
-episodes = 1
-"#;
-
 const EXPERIMENT: &str = r#"
 total_env_steps = 6000
 seeds = [1, 2]
 tasks = ["pendulum"]
+
+[set]
+"run.checkpoint_every" = 500
+"run.checkpoint_replay" = true
 
 [[method]]
 name = "a"

@@ -265,3 +265,25 @@ pub fn assert_same_run(a: &Path, b: &Path, what: &str) {
     );
     assert!(wa == wb, "{what}: final weights differ from the twin's");
 }
+
+/// A tiny Pendulum config (the sizes of `small_run`), as a method's config file.
+pub const TINY: &str = r#"
+[run]
+env = "pendulum"
+seed = 1
+threads = 1
+checkpoint_every = 1000
+
+[algo]
+actors = 2
+critics = 2
+subset = 2
+utd = 1
+batch_size = 64
+hidden = [32, 32]
+warmup_steps = 400
+
+[eval]
+epoch_env_steps = 500
+episodes = 1
+"#;
