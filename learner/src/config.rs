@@ -578,8 +578,8 @@ impl Config {
             // A budget in rounds says "this much learner work"; one spent inside the warm-up
             // would do none, which is never what a rounds budget means.
             let warmup_rounds = self.warmup_per_actor();
-            if rounds <= warmup_rounds {
-                return bad(format!("run.total_rounds = {rounds} ends within the warm-up (algo.warmup_steps = {} env steps are {warmup_rounds} rounds of K = {k} actors), so no critic update would happen; raise run.total_rounds above {warmup_rounds} or lower algo.warmup_steps", a.warmup_steps));
+            if rounds < warmup_rounds {
+                return bad(format!("run.total_rounds = {rounds} ends within the warm-up (algo.warmup_steps = {} env steps are {warmup_rounds} rounds of K = {k} actors), so no critic update would happen; raise run.total_rounds to at least {warmup_rounds} or lower algo.warmup_steps", a.warmup_steps));
             }
         }
         if self.eval.epoch_env_steps == 0 || self.eval.episodes == 0 || self.eval.score_window == 0
@@ -631,12 +631,15 @@ impl Config {
         self.run.total_env_steps.div_ceil(self.algo.actors as u64)
     }
 
-    /// The critic updates a run makes in its budget: G per round, a round per env step of each
-    /// actor past the warm-up.
+    /// The critic updates a run makes in its budget: G per round, from the round whose
+    /// transitions complete the warm-up (the learner's `RateLimiter::rounds_due`: one round when
+    /// the warm-up's last transition is stored, then one per K more) to the budget's last.
     pub fn critic_updates_in_budget(&self) -> u64 {
-        self.steps_per_actor()
-            .saturating_sub(self.warmup_per_actor())
-            * self.algo.utd as u64
+        let (rounds, warmup) = (self.steps_per_actor(), self.warmup_per_actor());
+        if rounds < warmup {
+            return 0;
+        }
+        (rounds - warmup + 1) * self.algo.utd as u64
     }
 
     /// The spec of `run.env` built with `[env_options]` (options may change its sizes).
@@ -866,7 +869,10 @@ mod tests {
     }
 
     /// Counted by hand: the paper's 300 000 env steps over K = 5 actors are 60 000 rounds, 1 000 of
-    /// them (5 000 env steps) warm-up, × G = 20; a budget inside the warm-up makes none.
+    /// them (5 000 env steps) warm-up; the 1 000th round, whose transitions complete the warm-up,
+    /// trains, and so does every later one: (60 000 − 1 000 + 1) × G = 20. A budget inside the
+    /// warm-up makes none. (The end-to-end test `budgets_in_rounds_and_env_steps_…` checks such a
+    /// count against a real run's metrics.csv.)
     #[test]
     fn the_budget_counts_g_updates_per_round_past_the_warm_up() {
         let budget = |sets: &[&str]| {
@@ -881,8 +887,8 @@ mod tests {
             "algo.utd=20",
             "algo.warmup_steps=5000",
         ];
-        assert_eq!(budget(&paper), 1_180_000);
-        // K = 3: 12 000 / 3 = 4 000 rounds, 1 500 / 3 = 500 of them warm-up, × 3.
+        assert_eq!(budget(&paper), 1_180_020);
+        // K = 3: 12 000 / 3 = 4 000 rounds, training from round 500 (1 500 / 3): 3 501 × 3.
         assert_eq!(
             budget(&[
                 "run.total_env_steps=12000",
@@ -891,9 +897,10 @@ mod tests {
                 "algo.warmup_steps=1500",
                 "algo.batch_size=128",
             ]),
-            10_500
+            10_503
         );
-        // Uneven shares round up: 1 001 env steps over 2 actors are 501 each, warm-up 300 → 150.
+        // Uneven shares round up: 1 001 env steps over 2 actors are 501 each, warm-up 300 → 150:
+        // rounds 150 to 501.
         assert_eq!(
             budget(&[
                 "run.total_env_steps=1001",
@@ -901,7 +908,7 @@ mod tests {
                 "algo.utd=1",
                 "algo.warmup_steps=300",
             ]),
-            351
+            352
         );
         assert_eq!(
             budget(&["run.total_env_steps=4000", "algo.warmup_steps=5000"]),
@@ -918,7 +925,7 @@ mod tests {
             Config::from_toml_with_overrides("", &sets).unwrap()
         };
         // The paper's 60 000 rounds of K = 5: 300 000 env steps; 1 000 rounds of warm-up;
-        // (60 000 − 1 000) × 20 = 1 180 000, as the env-step budget of 300 000 above.
+        // (60 000 − 1 000 + 1) × 20 = 1 180 020, as the env-step budget of 300 000 above.
         let c = cfg(&[
             "run.total_rounds=60000",
             "algo.actors=5",
@@ -927,9 +934,9 @@ mod tests {
         ]);
         assert_eq!(c.run.total_env_steps, 300_000);
         assert_eq!(c.steps_per_actor(), 60_000);
-        assert_eq!(c.critic_updates_in_budget(), 1_180_000);
+        assert_eq!(c.critic_updates_in_budget(), 1_180_020);
         assert_eq!(c.budget_unit(), "rounds");
-        // K = 3, 4 000 rounds: 12 000 env steps; warm-up 1 500 / 3 = 500 rounds; 3 500 × 3.
+        // K = 3, 4 000 rounds: 12 000 env steps; warm-up 1 500 / 3 = 500 rounds; 3 501 × 3.
         let c = cfg(&[
             "run.total_rounds=4000",
             "algo.actors=3",
@@ -939,9 +946,9 @@ mod tests {
         ]);
         assert_eq!(
             (c.run.total_env_steps, c.critic_updates_in_budget()),
-            (12_000, 10_500)
+            (12_000, 10_503)
         );
-        // K = 2, warm-up 301 env steps rounds up to 151 rounds: (400 − 151) × 2 = 498.
+        // K = 2, warm-up 301 env steps rounds up to 151 rounds: (400 − 151 + 1) × 2 = 500.
         let c = cfg(&[
             "run.total_rounds=400",
             "algo.actors=2",
@@ -950,13 +957,13 @@ mod tests {
         ]);
         assert_eq!(
             (c.run.total_env_steps, c.critic_updates_in_budget()),
-            (800, 498)
+            (800, 500)
         );
-        // K = 1: rounds are env steps.
+        // K = 1: rounds are env steps; warm-up 5 000: (7 000 − 5 000 + 1) × 20.
         let c = cfg(&["run.total_rounds=7000", "algo.actors=1", "algo.utd=20"]);
         assert_eq!(
             (c.run.total_env_steps, c.critic_updates_in_budget()),
-            (7_000, 40_000)
+            (7_000, 40_020)
         );
         // The written config states both, reads back equal, and a config without the key
         // (written before it existed) has no `total_rounds` line at all.
@@ -1002,19 +1009,20 @@ mod tests {
                 && !e.contains('\n'),
             "{e}"
         );
-        // 5 000 warm-up env steps over K = 5 are 1 000 rounds: 1 000 rounds do nothing.
-        let e = err("", &["run.total_rounds=1000", "algo.warmup_steps=5000"]);
+        // 5 000 warm-up env steps over K = 5 are 1 000 rounds: 999 rounds do nothing (the
+        // 1 000th, which completes the warm-up, trains).
+        let e = err("", &["run.total_rounds=999", "algo.warmup_steps=5000"]);
         assert!(
-            e.contains("run.total_rounds = 1000")
+            e.contains("run.total_rounds = 999")
                 && e.contains("1000 rounds")
-                && e.contains("raise run.total_rounds above 1000")
+                && e.contains("raise run.total_rounds to at least 1000")
                 && !e.contains('\n'),
             "{e}"
         );
         Config::from_toml_with_overrides(
             "",
             &[
-                "run.total_rounds=1001".into(),
+                "run.total_rounds=1000".into(),
                 "algo.warmup_steps=5000".into(),
             ],
         )
