@@ -14,7 +14,7 @@
 
 pub mod align;
 pub mod figure;
-mod fresh;
+pub(crate) mod fresh;
 pub mod runs;
 mod table;
 
