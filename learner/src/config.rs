@@ -24,8 +24,15 @@ pub struct RunConfig {
     /// Registry name of the environment.
     pub env: String,
     pub seed: u64,
-    /// Budget: transitions from all actors together.
+    /// Budget: transitions from all actors together. Resolved from `total_rounds` when that is set.
     pub total_env_steps: u64,
+    /// Budget in rounds (Algorithm 1's time-steps: each of the K actors takes one step), 0 = unset.
+    /// When set, `total_env_steps` becomes rounds × K at validation, so everything downstream
+    /// counts env steps as before; kept in the written config so a report can say which unit the
+    /// run's budget was set in. Left out of the TOML when unset, so configs written before it
+    /// existed compare equal to new ones.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub total_rounds: u64,
     pub mode: Mode,
     /// `cpu` or `cuda` (or `cuda:N`), for the learner.
     pub device: String,
@@ -45,6 +52,10 @@ pub struct RunConfig {
     /// Permissions of a run directory this run creates (checkpoints of a private task are
     /// data: by default only the owner may read them).
     pub dir_mode: DirMode,
+}
+
+fn is_zero(v: &u64) -> bool {
+    *v == 0
 }
 
 /// A directory's permission bits, written in a config as an octal string (`"0700"`).
@@ -272,6 +283,7 @@ impl Default for RunConfig {
             env: "pendulum".into(),
             seed: 1,
             total_env_steps: 300_000,
+            total_rounds: 0,
             mode: Mode::Sync,
             device: "cpu".into(),
             threads: 0,
@@ -362,11 +374,48 @@ impl Config {
         for o in overrides {
             apply_override(&mut value, o)?;
         }
-        let cfg: Config = toml::Value::Table(value)
+        restate_budget(&mut value, overrides)?;
+        let steps_given = value
+            .get("run")
+            .and_then(|r| r.get("total_env_steps"))
+            .is_some();
+        let mut cfg: Config = toml::Value::Table(value)
             .try_into()
             .map_err(|e: toml::de::Error| ConfigError::Parse(one_line(&e.to_string())))?;
+        cfg.resolve_budget(steps_given)?;
         cfg.validate()?;
         Ok(cfg)
+    }
+
+    /// A budget in rounds becomes `run.total_env_steps` = rounds × K, once, here; a config that
+    /// also gives env steps must agree with it (every run's written config.toml states both).
+    fn resolve_budget(&mut self, steps_given: bool) -> Result<(), ConfigError> {
+        let (rounds, k) = (self.run.total_rounds, self.algo.actors as u64);
+        if rounds == 0 || k == 0 {
+            return Ok(()); // no rounds budget, or K = 0, which validate() reports
+        }
+        let Some(steps) = rounds.checked_mul(k) else {
+            return Err(ConfigError::Invalid(format!(
+                "run.total_rounds = {rounds} × algo.actors = {k} overflows; choose a smaller budget"
+            )));
+        };
+        if steps_given && self.run.total_env_steps != steps {
+            return Err(ConfigError::Invalid(format!(
+                "run.total_env_steps = {} and run.total_rounds = {rounds} both set the budget and disagree ({rounds} rounds of K = {k} actors are {steps} env steps); set only one",
+                self.run.total_env_steps
+            )));
+        }
+        self.run.total_env_steps = steps;
+        Ok(())
+    }
+
+    /// The unit the budget was set in, for reports: `rounds` or `env steps`.
+    pub fn budget_unit(&self) -> &'static str {
+        if self.run.total_rounds > 0 {
+            "rounds"
+        } else {
+            "env steps"
+        }
     }
 
     pub fn to_toml(&self) -> String {
@@ -520,6 +569,19 @@ impl Config {
         if self.run.total_env_steps == 0 {
             return bad("run.total_env_steps must be at least 1".into());
         }
+        let rounds = self.run.total_rounds;
+        if rounds > 0 {
+            let k = a.actors as u64;
+            if rounds.checked_mul(k) != Some(self.run.total_env_steps) {
+                return bad(format!("run.total_rounds = {rounds} with K = {k} actors is {} env steps, but run.total_env_steps = {}; set only one", rounds.saturating_mul(k), self.run.total_env_steps));
+            }
+            // A budget in rounds says "this much learner work"; one spent inside the warm-up
+            // would do none, which is never what a rounds budget means.
+            let warmup_rounds = self.warmup_per_actor();
+            if rounds < warmup_rounds {
+                return bad(format!("run.total_rounds = {rounds} ends within the warm-up (algo.warmup_steps = {} env steps are {warmup_rounds} rounds of K = {k} actors), so no critic update would happen; raise run.total_rounds to at least {warmup_rounds} or lower algo.warmup_steps", a.warmup_steps));
+            }
+        }
         if self.eval.epoch_env_steps == 0 || self.eval.episodes == 0 || self.eval.score_window == 0
         {
             return bad(
@@ -569,12 +631,15 @@ impl Config {
         self.run.total_env_steps.div_ceil(self.algo.actors as u64)
     }
 
-    /// The critic updates a run makes in its budget: G per round, a round per env step of each
-    /// actor past the warm-up.
+    /// The critic updates a run makes in its budget: G per round, from the round whose
+    /// transitions complete the warm-up (the learner's `RateLimiter::rounds_due`: one round when
+    /// the warm-up's last transition is stored, then one per K more) to the budget's last.
     pub fn critic_updates_in_budget(&self) -> u64 {
-        self.steps_per_actor()
-            .saturating_sub(self.warmup_per_actor())
-            * self.algo.utd as u64
+        let (rounds, warmup) = (self.steps_per_actor(), self.warmup_per_actor());
+        if rounds < warmup {
+            return 0;
+        }
+        (rounds - warmup + 1) * self.algo.utd as u64
     }
 
     /// The spec of `run.env` built with `[env_options]` (options may change its sizes).
@@ -590,6 +655,35 @@ impl Config {
 
 fn one_line(s: &str) -> String {
     s.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+/// An override of one budget key restates the budget: it replaces the other key from the config
+/// file (`--set run.total_rounds=20000` on a config that sets `total_env_steps`, or a raised
+/// `run.total_env_steps` on a resumed rounds run). Overrides that set both are a mistake.
+fn restate_budget(table: &mut toml::Table, overrides: &[String]) -> Result<(), ConfigError> {
+    let set = |key: &str| -> Option<&str> {
+        overrides.iter().rev().find_map(|o| {
+            let (k, v) = o.split_once('=')?;
+            (k.trim() == key).then_some(v.trim())
+        })
+    };
+    let (steps, rounds) = (set("run.total_env_steps"), set("run.total_rounds"));
+    let rounds_unset = rounds.is_some_and(|v| v == "0");
+    let run = table.get_mut("run").and_then(|r| r.as_table_mut());
+    match (steps, rounds, run) {
+        (Some(s), Some(r), _) if !rounds_unset => Err(ConfigError::Invalid(format!(
+            "--set run.total_env_steps={s} and --set run.total_rounds={r} both set the budget; set only one (rounds = env steps / K)"
+        ))),
+        (Some(_), None, Some(run)) => {
+            run.remove("total_rounds");
+            Ok(())
+        }
+        (None, Some(_), Some(run)) if !rounds_unset => {
+            run.remove("total_env_steps");
+            Ok(())
+        }
+        _ => Ok(()),
+    }
 }
 
 /// `section.key=value`; the value is read as TOML (number, bool, array) or else as a string.
@@ -775,7 +869,10 @@ mod tests {
     }
 
     /// Counted by hand: the paper's 300 000 env steps over K = 5 actors are 60 000 rounds, 1 000 of
-    /// them (5 000 env steps) warm-up, × G = 20; a budget inside the warm-up makes none.
+    /// them (5 000 env steps) warm-up; the 1 000th round, whose transitions complete the warm-up,
+    /// trains, and so does every later one: (60 000 − 1 000 + 1) × G = 20. A budget inside the
+    /// warm-up makes none. (The end-to-end test `budgets_in_rounds_and_env_steps_…` checks such a
+    /// count against a real run's metrics.csv.)
     #[test]
     fn the_budget_counts_g_updates_per_round_past_the_warm_up() {
         let budget = |sets: &[&str]| {
@@ -790,8 +887,8 @@ mod tests {
             "algo.utd=20",
             "algo.warmup_steps=5000",
         ];
-        assert_eq!(budget(&paper), 1_180_000);
-        // K = 3: 12 000 / 3 = 4 000 rounds, 1 500 / 3 = 500 of them warm-up, × 3.
+        assert_eq!(budget(&paper), 1_180_020);
+        // K = 3: 12 000 / 3 = 4 000 rounds, training from round 500 (1 500 / 3): 3 501 × 3.
         assert_eq!(
             budget(&[
                 "run.total_env_steps=12000",
@@ -800,9 +897,10 @@ mod tests {
                 "algo.warmup_steps=1500",
                 "algo.batch_size=128",
             ]),
-            10_500
+            10_503
         );
-        // Uneven shares round up: 1 001 env steps over 2 actors are 501 each, warm-up 300 → 150.
+        // Uneven shares round up: 1 001 env steps over 2 actors are 501 each, warm-up 300 → 150:
+        // rounds 150 to 501.
         assert_eq!(
             budget(&[
                 "run.total_env_steps=1001",
@@ -810,12 +908,127 @@ mod tests {
                 "algo.utd=1",
                 "algo.warmup_steps=300",
             ]),
-            351
+            352
         );
         assert_eq!(
             budget(&["run.total_env_steps=4000", "algo.warmup_steps=5000"]),
             0
         );
+    }
+
+    /// Counted by hand: a rounds budget is each actor's step count, so it gives the same critic
+    /// updates as the env-step budget of rounds × K, and K = 1 makes the two units equal.
+    #[test]
+    fn a_budget_in_rounds_is_env_steps_times_k_with_the_same_critic_updates() {
+        let cfg = |sets: &[&str]| {
+            let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+            Config::from_toml_with_overrides("", &sets).unwrap()
+        };
+        // The paper's 60 000 rounds of K = 5: 300 000 env steps; 1 000 rounds of warm-up;
+        // (60 000 − 1 000 + 1) × 20 = 1 180 020, as the env-step budget of 300 000 above.
+        let c = cfg(&[
+            "run.total_rounds=60000",
+            "algo.actors=5",
+            "algo.utd=20",
+            "algo.warmup_steps=5000",
+        ]);
+        assert_eq!(c.run.total_env_steps, 300_000);
+        assert_eq!(c.steps_per_actor(), 60_000);
+        assert_eq!(c.critic_updates_in_budget(), 1_180_020);
+        assert_eq!(c.budget_unit(), "rounds");
+        // K = 3, 4 000 rounds: 12 000 env steps; warm-up 1 500 / 3 = 500 rounds; 3 501 × 3.
+        let c = cfg(&[
+            "run.total_rounds=4000",
+            "algo.actors=3",
+            "algo.utd=3",
+            "algo.warmup_steps=1500",
+            "algo.batch_size=128",
+        ]);
+        assert_eq!(
+            (c.run.total_env_steps, c.critic_updates_in_budget()),
+            (12_000, 10_503)
+        );
+        // K = 2, warm-up 301 env steps rounds up to 151 rounds: (400 − 151 + 1) × 2 = 500.
+        let c = cfg(&[
+            "run.total_rounds=400",
+            "algo.actors=2",
+            "algo.utd=2",
+            "algo.warmup_steps=301",
+        ]);
+        assert_eq!(
+            (c.run.total_env_steps, c.critic_updates_in_budget()),
+            (800, 500)
+        );
+        // K = 1: rounds are env steps; warm-up 5 000: (7 000 − 5 000 + 1) × 20.
+        let c = cfg(&["run.total_rounds=7000", "algo.actors=1", "algo.utd=20"]);
+        assert_eq!(
+            (c.run.total_env_steps, c.critic_updates_in_budget()),
+            (7_000, 40_020)
+        );
+        // The written config states both, reads back equal, and a config without the key
+        // (written before it existed) has no `total_rounds` line at all.
+        let c = cfg(&["run.total_rounds=2000", "algo.actors=5"]);
+        let text = c.to_toml();
+        assert!(
+            text.contains("total_rounds = 2000") && text.contains("total_env_steps = 10000"),
+            "{text}"
+        );
+        assert_eq!(Config::from_toml_with_overrides(&text, &[]).unwrap(), c);
+        assert!(!Config::default().to_toml().contains("total_rounds"));
+        // Resuming it with a raised env-step budget restates the budget in env steps, and the
+        // other way round.
+        let raised =
+            Config::from_toml_with_overrides(&text, &["run.total_env_steps=20000".into()]).unwrap();
+        assert_eq!(
+            (raised.run.total_env_steps, raised.run.total_rounds),
+            (20_000, 0)
+        );
+        let file = "[run]\ntotal_env_steps = 50000\n";
+        let r = Config::from_toml_with_overrides(file, &["run.total_rounds=3000".into()]).unwrap();
+        assert_eq!((r.run.total_env_steps, r.run.total_rounds), (15_000, 3000));
+        // 0 unsets it.
+        let r = Config::from_toml_with_overrides(&text, &["run.total_rounds=0".into()]).unwrap();
+        assert_eq!((r.run.total_env_steps, r.run.total_rounds), (10_000, 0));
+    }
+
+    #[test]
+    fn two_budgets_or_a_rounds_budget_inside_the_warm_up_are_one_line_errors() {
+        let e = err("[run]\ntotal_env_steps = 50000\ntotal_rounds = 2000\n", &[]);
+        assert!(
+            e.contains("run.total_env_steps = 50000")
+                && e.contains("run.total_rounds = 2000")
+                && e.contains("10000 env steps")
+                && e.contains("set only one")
+                && !e.contains('\n'),
+            "{e}"
+        );
+        let e = err("", &["run.total_env_steps=5000", "run.total_rounds=1000"]);
+        assert!(
+            e.contains("run.total_env_steps=5000")
+                && e.contains("run.total_rounds=1000")
+                && !e.contains('\n'),
+            "{e}"
+        );
+        // 5 000 warm-up env steps over K = 5 are 1 000 rounds: 999 rounds do nothing (the
+        // 1 000th, which completes the warm-up, trains).
+        let e = err("", &["run.total_rounds=999", "algo.warmup_steps=5000"]);
+        assert!(
+            e.contains("run.total_rounds = 999")
+                && e.contains("1000 rounds")
+                && e.contains("raise run.total_rounds to at least 1000")
+                && !e.contains('\n'),
+            "{e}"
+        );
+        Config::from_toml_with_overrides(
+            "",
+            &[
+                "run.total_rounds=1000".into(),
+                "algo.warmup_steps=5000".into(),
+            ],
+        )
+        .unwrap();
+        let e = err("", &["run.total_rounds=9223372036854775807"]);
+        assert!(e.contains("overflows"), "{e}");
     }
 
     #[test]
