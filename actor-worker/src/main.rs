@@ -42,6 +42,8 @@ struct Args {
 }
 
 fn main() {
+    // `gymnasium:` envs step in an embedded Python.
+    selkd_gymnasium::register();
     // Colour only on a terminal: the launcher sends these logs to files.
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
@@ -278,8 +280,10 @@ fn run(args: &Args) -> Result<()> {
         ))
         .into());
     }
+    env_failed(&*env)?;
     for (i, action) in recorded_actions.chunks(spec.act_dim.max(1)).enumerate() {
         let step = env.step(action);
+        env_failed(&*env)?;
         if step.terminated || step.truncated {
             return Err(CannotJoin(format!(
                 "replaying episode {episode}'s {t} recorded steps ended it at step {i}: the env does not repeat its episodes (is this actor-worker built from the same source as the learner?)"
@@ -336,6 +340,7 @@ fn run(args: &Args) -> Result<()> {
                 policy,
                 (0..control.eval_episodes as u64).map(|e| evaluation::epoch_seed(seed, epoch, e)),
             );
+            env_failed(&*eval_env)?;
             let (mean_return, success_rate) = (result.mean_return(), result.success_rate());
             reports.send_copy(hello(
                 ReportKind::Evaluation,
@@ -364,6 +369,7 @@ fn run(args: &Args) -> Result<()> {
                 }
             };
             let step = env.step(&action);
+            env_failed(&*env)?;
             episode_return += step.reward;
             let done = step.terminated || step.truncated;
             row.write(
@@ -394,6 +400,7 @@ fn run(args: &Args) -> Result<()> {
             if done {
                 episode += 1;
                 obs = env.reset(Some(episode_seed(seed, args.worker, episode)));
+                env_failed(&*env)?;
                 t = 0;
                 episode_return = 0.0;
             } else {
@@ -409,6 +416,15 @@ fn run(args: &Args) -> Result<()> {
                 bail!("the learner of run `{}` is gone; stopping", args.run_id);
             }
         }
+    }
+}
+
+/// An env that failed (a Python exception in a Gymnasium env) fails the worker with its
+/// message; a restart would only fail again the same way, so it counts as "cannot join".
+fn env_failed(env: &dyn selkd_envs::Env) -> Result<()> {
+    match env.failure() {
+        Some(why) => Err(selkd_envs::EnvError::Failed(why).into()),
+        None => Ok(()),
     }
 }
 

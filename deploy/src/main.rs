@@ -68,6 +68,8 @@ enum Command {
 fn main() {
     // Before anything else: it may execute selkd again (its children inherit the setting).
     selkd_learner::restart_with_runtime_settings();
+    // `gymnasium:` envs step in an embedded Python.
+    selkd_gymnasium::register();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => usage_error(e),

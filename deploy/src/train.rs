@@ -481,7 +481,10 @@ async fn supervise(
                         continue; // the learner told it to stop
                     }
                     if code == Some(selkd_protocol::EXIT_CANNOT_JOIN) {
-                        failure = Some(format!("worker {worker} cannot join the run; see {}", run_dir.join("logs").join(format!("worker-{worker}.log")).display()));
+                        let log = run_dir.join("logs").join(format!("worker-{worker}.log"));
+                        // Its own one-line reason, as the worker wrote it last.
+                        let why = std::fs::read_to_string(&log).ok().and_then(|t| t.lines().rev().find(|l| l.contains(": error: ")).map(|l| l.split_once(": error: ").map_or(l, |(_, w)| w).to_string()));
+                        failure = Some(format!("worker {worker} cannot join the run{}; see {}", why.map_or(String::new(), |w| format!(": {w}")), log.display()));
                         stopping = true;
                         unsafe { libc::kill(learner_pid, libc::SIGTERM) };
                         continue;

@@ -97,6 +97,12 @@ pub trait Env: Send {
     fn control_dt(&self) -> Option<f64> {
         None
     }
+    /// Why the env cannot go on, once it has failed (an exception inside a Gymnasium env's
+    /// `reset` or `step`: that step came back terminated, with a zero observation). Our own
+    /// envs never fail. A caller checks it after each `reset` and `step`.
+    fn failure(&self) -> Option<String> {
+        None
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -105,6 +111,11 @@ pub enum EnvError {
     Unknown { name: String, known: String },
     #[error("env_options for `{env}`: {message}")]
     Options { env: String, message: String },
+    #[error("`{name}`: this program cannot step Gymnasium envs (only selkd, learner and actor-worker can)")]
+    Family { name: String },
+    /// The env failed (a Python exception in Gymnasium's `make`, `reset` or `step`).
+    #[error("{0}")]
+    Failed(String),
 }
 
 /// An env's options as a TOML table (the run config's `[env_options]`); each env reads them
@@ -198,9 +209,40 @@ pub fn make(name: &str) -> Result<Box<dyn Env>, EnvError> {
     make_with(name, &EnvOptions::new())
 }
 
+/// Envs from outside this crate, by name prefix (`gymnasium:` for Gymnasium's registry): a
+/// process that can step them registers their constructor once at start-up
+/// ([`register_family`]); this crate only routes names to it.
+static FAMILIES: std::sync::Mutex<Vec<(&'static str, ExternalConstructor)>> =
+    std::sync::Mutex::new(Vec::new());
+
+/// Builds an env of a family from its full name (`gymnasium:Hopper-v5`) and options.
+pub type ExternalConstructor = fn(&str, &EnvOptions) -> Result<Box<dyn Env>, EnvError>;
+
+/// Routes every name that starts with `prefix` (e.g. `"gymnasium:"`) to `make`; registering a
+/// prefix again replaces its constructor.
+pub fn register_family(prefix: &'static str, make: ExternalConstructor) {
+    let mut families = FAMILIES.lock().unwrap_or_else(|e| e.into_inner());
+    families.retain(|(p, _)| *p != prefix);
+    families.push((prefix, make));
+}
+
 /// Builds an env by registry name with `options` (checked: unknown keys and bad values are
 /// errors that name them).
 pub fn make_with(name: &str, options: &EnvOptions) -> Result<Box<dyn Env>, EnvError> {
+    let family = FAMILIES
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .iter()
+        .find(|(prefix, _)| name.starts_with(prefix))
+        .map(|(_, make)| *make);
+    if let Some(make) = family {
+        return make(name, options);
+    }
+    if name.starts_with("gymnasium:") {
+        return Err(EnvError::Family {
+            name: name.to_string(),
+        });
+    }
     let key = canonical(name);
     let make = REGISTRY
         .iter()

@@ -34,6 +34,8 @@ struct Args {
 
 fn main() {
     selkd_learner::restart_with_runtime_settings();
+    // `gymnasium:` envs step in an embedded Python.
+    selkd_gymnasium::register();
     // Colour only on a terminal: the launcher sends these logs to files.
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)

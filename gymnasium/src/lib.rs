@@ -1,0 +1,397 @@
+//! Gymnasium environments behind the envs crate's [`Env`] trait: `run.env = "gymnasium:<id>"`
+//! (`gymnasium:Hopper-v5`, `gymnasium:Pendulum-v1`, or any id a package registers) is
+//! `gymnasium.make(id, **env_options)`, stepped in a Python interpreter embedded in this process.
+//!
+//! Why embedded: a worker steps its env tens of thousands of times a second at most, and a
+//! round trip to a Python child over a pipe costs about what a MuJoCo step does; in-process, a
+//! step costs one Python call more than Gymnasium's own (measured in the README).
+//!
+//! - Spaces: `Box` observations and actions (flattened), anything else is an error naming the
+//!   space. The policy's actions in `[-1, 1]` map affinely onto the action Box's bounds, which
+//!   must be finite.
+//! - Episodes: `terminated` stops bootstrapping, `truncated` (Gymnasium's time limit) does not;
+//!   `reset(Some(seed))` is `env.reset(seed=seed)`, so a deterministic env (MuJoCo is) replays an
+//!   episode exactly from its seed and actions.
+//! - Options: `[env_options]` are `gymnasium.make`'s keywords, except `import = ["pkg", ...]`,
+//!   modules imported first (packages that register their own ids).
+//! - Python: the interpreter this binary was linked with, with the project's venv
+//!   (`deploy/python.sh`: `SELKD_PYTHON_VENV`, else `python-venv` in the per-user cache) added to
+//!   its path.
+//! - Failures: an exception in `reset` or `step` ends the episode (terminated, zero observation)
+//!   and [`Env::failure`] says why; non-finite observations or rewards end the episode the same
+//!   way, as our own envs do.
+
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict, PyTuple};
+use selkd_envs::{Env, EnvError, EnvOptions, EnvSpec, Step};
+use std::ffi::CString;
+use std::path::PathBuf;
+use std::sync::Mutex;
+
+/// The name prefix of Gymnasium envs.
+pub const PREFIX: &str = "gymnasium:";
+
+/// The `env_options` key that lists modules to import before `gymnasium.make`.
+pub const IMPORT_KEY: &str = "import";
+
+/// Lets this process's envs registry make `gymnasium:` envs.
+pub fn register() {
+    selkd_envs::register_family(PREFIX, make);
+}
+
+/// What runs on the Python side: one call per reset or step, with the observation flattened to
+/// float32 bytes and the action passed as float64 bytes, so that no per-element objects are made.
+const GLUE: &str = r#"
+import numpy as _np
+
+def _flat(o):
+    return _np.asarray(o, dtype=_np.float32).ravel().tobytes()
+
+def reset(env, seed):
+    o, _ = env.reset(seed=seed) if seed is not None else env.reset()
+    return _flat(o)
+
+def step(env, action, dtype, shape):
+    a = _np.frombuffer(action, dtype=_np.float64).astype(dtype).reshape(shape)
+    o, r, terminated, truncated, _ = env.step(a)
+    return _flat(o), float(r), bool(terminated), bool(truncated)
+
+def box(space):
+    from gymnasium.spaces import Box
+    if not isinstance(space, Box):
+        return None
+    low = _np.asarray(space.low, dtype=_np.float64).ravel()
+    high = _np.asarray(space.high, dtype=_np.float64).ravel()
+    return low.tolist(), high.tolist(), tuple(space.shape), str(space.dtype)
+"#;
+
+/// Ids as `&'static str` for [`EnvSpec::id`]: one leaked copy per distinct id, ever.
+fn intern(id: &str) -> &'static str {
+    static IDS: Mutex<Vec<&'static str>> = Mutex::new(Vec::new());
+    let mut ids = IDS.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(s) = ids.iter().find(|s| **s == id) {
+        return s;
+    }
+    let s: &'static str = Box::leak(id.to_string().into_boxed_str());
+    ids.push(s);
+    s
+}
+
+/// The venv `deploy/python.sh` makes, found as it finds it.
+pub fn venv() -> PathBuf {
+    if let Some(v) = std::env::var_os("SELKD_PYTHON_VENV") {
+        return PathBuf::from(v);
+    }
+    let cache = std::env::var_os("SELKD_CACHE")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("XDG_CACHE_HOME").map(|c| PathBuf::from(c).join("selkd")))
+        .unwrap_or_else(|| {
+            PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cache/selkd")
+        });
+    cache.join("python-venv")
+}
+
+/// An exception as one line: its type and message, newlines folded.
+fn one_line(py: Python<'_>, e: &PyErr) -> String {
+    let kind = e
+        .get_type(py)
+        .name()
+        .map(|n| n.to_string())
+        .unwrap_or_else(|_| "Exception".into());
+    let msg = e.value(py).to_string();
+    let msg = msg.split_whitespace().collect::<Vec<_>>().join(" ");
+    format!("{kind}: {msg}")
+}
+
+/// The glue module, made once per process (adding the venv to the path first).
+fn glue(py: Python<'_>) -> PyResult<Py<PyModule>> {
+    static GLUE_MODULE: Mutex<Option<Py<PyModule>>> = Mutex::new(None);
+    let mut slot = GLUE_MODULE.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some(m) = slot.as_ref() {
+        return Ok(m.clone_ref(py));
+    }
+    let sys = py.import("sys")?;
+    let version: (u8, u8) = sys
+        .getattr("version_info")?
+        .get_item(0)?
+        .extract::<u8>()
+        .and_then(|major| {
+            Ok((
+                major,
+                sys.getattr("version_info")?.get_item(1)?.extract::<u8>()?,
+            ))
+        })?;
+    let site = venv()
+        .join("lib")
+        .join(format!("python{}.{}", version.0, version.1))
+        .join("site-packages");
+    if site.is_dir() {
+        py.import("site")?
+            .call_method1("addsitedir", (site.to_string_lossy().as_ref(),))?;
+    }
+    let code = CString::new(GLUE).expect("no NUL in the glue");
+    let m = PyModule::from_code(
+        py,
+        &code,
+        c"selkd_gymnasium_glue.py",
+        c"selkd_gymnasium_glue",
+    )?;
+    let m: Py<PyModule> = m.unbind();
+    *slot = Some(m.clone_ref(py));
+    Ok(m)
+}
+
+fn options_error(name: &str, message: String) -> EnvError {
+    EnvError::Options {
+        env: name.to_string(),
+        message,
+    }
+}
+
+/// `gymnasium.make(id, **options)`, checked: Box spaces with finite action bounds, a time limit.
+pub fn make(name: &str, options: &EnvOptions) -> Result<Box<dyn Env>, EnvError> {
+    let id = name.strip_prefix(PREFIX).unwrap_or(name);
+    let mut kwargs = options.clone();
+    let imports: Vec<String> = match kwargs.remove(IMPORT_KEY) {
+        None => vec![],
+        Some(toml::Value::Array(a)) => a
+            .iter()
+            .map(|v| v.as_str().map(str::to_string))
+            .collect::<Option<_>>()
+            .ok_or_else(|| {
+                options_error(
+                    name,
+                    format!("`{IMPORT_KEY}` must be a list of module names"),
+                )
+            })?,
+        Some(_) => {
+            return Err(options_error(
+                name,
+                format!("`{IMPORT_KEY}` must be a list of module names, e.g. [\"ale_py\"]"),
+            ))
+        }
+    };
+    let kwargs_json = serde_json::to_string(&kwargs)
+        .map_err(|e| options_error(name, format!("options as make() keywords: {e}")))?;
+    Python::attach(|py| -> Result<Box<dyn Env>, EnvError> {
+        let py_err = |e: PyErr| options_error(name, one_line(py, &e));
+        let glue = glue(py).map_err(py_err)?;
+        let gym = py.import("gymnasium").map_err(|e| {
+            options_error(
+                name,
+                format!(
+                    "Gymnasium is not installed for this Python ({}); run `bash deploy/python.sh`, which installs it into {}, or set SELKD_PYTHON_VENV to a venv that has it",
+                    one_line(py, &e),
+                    venv().display()
+                ),
+            )
+        })?;
+        for module in &imports {
+            py.import(module.as_str()).map_err(|e| {
+                options_error(
+                    name,
+                    format!(
+                        "importing `{module}` ({}): install it into {} ({}/bin/pip install …)",
+                        one_line(py, &e),
+                        venv().display(),
+                        venv().display()
+                    ),
+                )
+            })?;
+        }
+        let kw = py
+            .import("json")
+            .and_then(|j| j.call_method1("loads", (kwargs_json.as_str(),)))
+            .and_then(|d| d.cast_into::<PyDict>().map_err(Into::into))
+            .map_err(py_err)?;
+        let env = gym.call_method("make", (id,), Some(&kw)).map_err(|e| {
+            let mut m = one_line(py, &e);
+            // Gymnasium names the extra to install; it must go into our venv.
+            if m.contains("pip install") {
+                m = format!(
+                    "{m} (into {}: {}/bin/pip)",
+                    venv().display(),
+                    venv().display()
+                );
+            }
+            options_error(name, m)
+        })?;
+        let space = |attr: &str| -> Result<(Vec<f64>, Vec<f64>, Vec<usize>, String), EnvError> {
+            let s = env.getattr(attr).map_err(py_err)?;
+            let b = glue.bind(py).call_method1("box", (&s,)).map_err(py_err)?;
+            if b.is_none() {
+                return Err(options_error(
+                    name,
+                    format!(
+                        "its {attr} is {}; only Box spaces are supported",
+                        s.repr().map(|r| r.to_string()).unwrap_or_default()
+                    ),
+                ));
+            }
+            b.extract().map_err(py_err)
+        };
+        let (_, _, obs_shape, _) = space("observation_space")?;
+        let (low, high, act_shape, act_dtype) = space("action_space")?;
+        if let Some(i) = (0..low.len()).find(|&i| !low[i].is_finite() || !high[i].is_finite()) {
+            return Err(options_error(
+                name,
+                format!(
+                    "its action space has an infinite bound ([{}, {}] at index {i}); actions in [-1, 1] can only be mapped onto finite bounds",
+                    low[i], high[i]
+                ),
+            ));
+        }
+        let limit: Option<usize> = env
+            .getattr("spec")
+            .and_then(|s| s.getattr("max_episode_steps"))
+            .and_then(|m| m.extract())
+            .map_err(py_err)?;
+        let Some(max_episode_steps) = limit else {
+            return Err(options_error(
+                name,
+                "it has no time limit; set env_options.max_episode_steps".into(),
+            ));
+        };
+        let symmetric = low.iter().zip(&high).all(|(l, h)| (l + h).abs() < 1e-9);
+        let spec = EnvSpec {
+            id: intern(name),
+            obs_dim: obs_shape.iter().product(),
+            act_dim: act_shape.iter().product(),
+            max_episode_steps,
+            gymnasium_action_scale: if symmetric && !high.is_empty() {
+                high[0] as f32
+            } else {
+                1.0
+            },
+        };
+        Ok(Box::new(GymEnv {
+            env: env.unbind(),
+            glue,
+            spec,
+            low,
+            high,
+            act_shape,
+            act_dtype,
+            failure: None,
+        }))
+    })
+}
+
+/// One `gymnasium.make` env.
+pub struct GymEnv {
+    env: Py<PyAny>,
+    glue: Py<PyModule>,
+    spec: EnvSpec,
+    low: Vec<f64>,
+    high: Vec<f64>,
+    act_shape: Vec<usize>,
+    act_dtype: String,
+    failure: Option<String>,
+}
+
+impl GymEnv {
+    fn obs(&self, bytes: &[u8]) -> Result<Vec<f32>, String> {
+        if bytes.len() != 4 * self.spec.obs_dim {
+            return Err(format!(
+                "{} returned an observation of {} values, not the {} of its observation space",
+                self.spec.id,
+                bytes.len() / 4,
+                self.spec.obs_dim
+            ));
+        }
+        Ok(bytes
+            .chunks_exact(4)
+            .map(|c| f32::from_ne_bytes([c[0], c[1], c[2], c[3]]))
+            .collect())
+    }
+
+    fn fail(&mut self, what: &str, e: String) -> Step {
+        self.failure = Some(format!("{}: {what}: {e}", self.spec.id));
+        Step::non_finite_state(self.spec.obs_dim, 0.0, false)
+    }
+}
+
+impl Env for GymEnv {
+    fn spec(&self) -> &EnvSpec {
+        &self.spec
+    }
+
+    fn reset(&mut self, seed: Option<u64>) -> Vec<f32> {
+        let got = Python::attach(|py| -> Result<Vec<f32>, String> {
+            let out = self
+                .glue
+                .bind(py)
+                .call_method1("reset", (self.env.bind(py), seed))
+                .map_err(|e| one_line(py, &e))?;
+            let bytes = out.cast::<PyBytes>().map_err(|e| e.to_string())?;
+            self.obs(bytes.as_bytes())
+        });
+        match got {
+            Ok(obs) if obs.iter().all(|x| x.is_finite()) => obs,
+            Ok(_) => vec![0.0; self.spec.obs_dim],
+            Err(e) => {
+                self.fail("reset raised", e);
+                vec![0.0; self.spec.obs_dim]
+            }
+        }
+    }
+
+    fn step(&mut self, action: &[f32]) -> Step {
+        if self.failure.is_some() {
+            return Step::non_finite_state(self.spec.obs_dim, 0.0, false);
+        }
+        let mut bytes = Vec::with_capacity(8 * action.len());
+        for ((a, l), h) in action.iter().zip(&self.low).zip(&self.high) {
+            let a = (*a as f64).clamp(-1.0, 1.0);
+            bytes.extend_from_slice(&(l + (a + 1.0) * 0.5 * (h - l)).to_ne_bytes());
+        }
+        let got = Python::attach(|py| -> Result<(Vec<f32>, f64, bool, bool), String> {
+            let out = self
+                .glue
+                .bind(py)
+                .call_method1(
+                    "step",
+                    (
+                        self.env.bind(py),
+                        PyBytes::new(py, &bytes),
+                        self.act_dtype.as_str(),
+                        PyTuple::new(py, &self.act_shape).map_err(|e| one_line(py, &e))?,
+                    ),
+                )
+                .map_err(|e| one_line(py, &e))?;
+            let (obs, reward, terminated, truncated): (Bound<'_, PyBytes>, f64, bool, bool) =
+                out.extract().map_err(|e: PyErr| one_line(py, &e))?;
+            Ok((self.obs(obs.as_bytes())?, reward, terminated, truncated))
+        });
+        match got {
+            Ok((obs, reward, terminated, truncated)) => {
+                if obs.iter().all(|x| x.is_finite()) && reward.is_finite() {
+                    Step {
+                        obs,
+                        reward,
+                        terminated,
+                        truncated,
+                        success: None,
+                    }
+                } else {
+                    // As our envs do: the episode ends here, terminated, with nothing non-finite.
+                    let reward = if reward.is_finite() { reward } else { 0.0 };
+                    Step::non_finite_state(self.spec.obs_dim, reward, truncated)
+                }
+            }
+            Err(e) => self.fail("step raised", e),
+        }
+    }
+
+    fn failure(&self) -> Option<String> {
+        self.failure.clone()
+    }
+}
+
+impl Drop for GymEnv {
+    fn drop(&mut self) {
+        Python::attach(|py| {
+            let _ = self.env.bind(py).call_method0("close");
+        });
+    }
+}
