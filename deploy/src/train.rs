@@ -204,7 +204,7 @@ pub fn run(mut args: TrainArgs) -> Result<i32> {
     }
     if args.resume.is_none() && holds_run(&run_dir) {
         bail!(
-            "run directory {} already holds a run; continue it with --resume {}/checkpoints/final (or the one `checkpoints/latest` names), or choose another --run-dir",
+            "run directory {} already holds a run; continue it with --resume {} (from its latest complete checkpoint), or choose another --run-dir",
             run_dir.display(),
             run_dir.display()
         );
@@ -318,7 +318,11 @@ fn resolve_resume(r: &Path) -> Result<PathBuf> {
             let dir = checkpoints.join(name.trim());
             match check_complete(&dir) {
                 Ok(_) => return Ok(dir),
-                Err(why) => format!("{} names `{}`, which is unusable: {why}", latest.display(), name.trim()),
+                Err(why) => format!(
+                    "{} names `{}`, which is unusable: {why}",
+                    latest.display(),
+                    name.trim()
+                ),
             }
         }
         Err(_) => format!("{} is missing", latest.display()),

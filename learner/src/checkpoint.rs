@@ -198,11 +198,11 @@ pub fn check_complete(dir: &Path) -> std::result::Result<TrainingState, String> 
         }
         Err(e) => return Err(format!("{}: cannot be read ({e})", state.display())),
     };
+    // Truncated, damaged, or written by a version whose state this one cannot read.
     let state: TrainingState = serde_json::from_str(&text).map_err(|e| {
         format!(
-            "{}: damaged or truncated ({})",
-            dir.join("state.json").display(),
-            e
+            "{}: not a state.json this selkd can read ({e})",
+            dir.join("state.json").display()
         )
     })?;
     check_safetensors(&dir.join("model.safetensors"))?;
@@ -531,6 +531,51 @@ pub fn load_actor(path: &Path, actor: Option<usize>) -> Result<LoadedActor> {
 #[cfg(test)]
 mod replace_tests {
     use super::*;
+
+    /// Files made by hand in the safetensors layout: each fault is named in one line.
+    #[test]
+    fn damaged_safetensors_files_are_named_with_what_is_wrong() {
+        let root = std::env::temp_dir().join(format!("selkd-check-st-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(&root).unwrap();
+        let file = |name: &str, header: &[u8], header_len: u64, data: usize| {
+            let p = root.join(name);
+            let mut bytes = header_len.to_le_bytes().to_vec();
+            bytes.extend_from_slice(header);
+            bytes.extend(std::iter::repeat_n(0u8, data));
+            std::fs::write(&p, bytes).unwrap();
+            p
+        };
+        // One f32 tensor of 2 values: 8 data bytes.
+        let header = br#"{"t":{"dtype":"F32","shape":[2],"data_offsets":[0,8]}}"#;
+        let n = header.len() as u64;
+        assert_eq!(check_safetensors(&file("ok", header, n, 8)), Ok(()));
+        let e = check_safetensors(&file("short-data", header, n, 4)).unwrap_err();
+        assert!(
+            e.ends_with(&format!(
+                "short-data is damaged: truncated: {} bytes, its header promises {}",
+                8 + n + 4,
+                8 + n + 8
+            )),
+            "{e}"
+        );
+        let e = check_safetensors(&file("short-header", header, 1000, 0)).unwrap_err();
+        assert!(
+            e.contains("truncated") && e.contains("its header alone needs 1008"),
+            "{e}"
+        );
+        let e = check_safetensors(&file("garbage", b"not json", 8, 0)).unwrap_err();
+        assert!(
+            e.ends_with("garbage is damaged: its header is not valid"),
+            "{e}"
+        );
+        std::fs::write(root.join("tiny"), b"abc").unwrap();
+        let e = check_safetensors(&root.join("tiny")).unwrap_err();
+        assert!(e.contains("3 bytes, too short for a header"), "{e}");
+        let e = check_safetensors(&root.join("absent")).unwrap_err();
+        assert!(e.ends_with("absent is missing"), "{e}");
+        let _ = std::fs::remove_dir_all(&root);
+    }
 
     /// A checkpoint written over an older one replaces it whole, and leaves no temporary
     /// directory behind; `latest` is replaced the same way.

@@ -870,7 +870,9 @@ mod tests {
         let e = c.check_memory(m.total() - 1).unwrap_err().to_string();
         // 4 572 bytes of networks outweigh 3 600 of replay: the networks' keys are named.
         assert!(
-            e.contains("needs at least 8.2 kB") && e.contains("algo.hidden = [8]") && e.contains("take 4.6 kB"),
+            e.contains("needs at least 8.2 kB")
+                && e.contains("algo.hidden = [8]")
+                && e.contains("take 4.6 kB"),
             "{e}"
         );
     }
@@ -879,10 +881,16 @@ mod tests {
     fn configs_the_machine_cannot_hold_are_refused_naming_the_key() {
         // 1e12 rows of 9 floats: 36 TB of replay.
         let e = err("", &["algo.replay_capacity=1000000000000"]);
-        assert!(e.contains("algo.replay_capacity = 1000000000000 takes 36.0 TB"), "{e}");
+        assert!(
+            e.contains("algo.replay_capacity = 1000000000000 takes 36.0 TB"),
+            "{e}"
+        );
         // Ten critics of 65536² weights are 172 GB each with their Adam state.
         let e = err("", &["algo.hidden=[65536, 65536]"]);
-        assert!(e.contains("algo.hidden = [65536, 65536]") && !e.contains('\n'), "{e}");
+        assert!(
+            e.contains("algo.hidden = [65536, 65536]") && !e.contains('\n'),
+            "{e}"
+        );
         let e = err("", &["eval.episodes=1000000000"]);
         assert!(e.contains("eval.episodes = 1000000000"), "{e}");
     }

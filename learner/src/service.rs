@@ -450,7 +450,9 @@ impl Learner {
             }
             let checkpoints = self.run_dir.join("checkpoints");
             let latest = std::fs::read_to_string(checkpoints.join("latest"))
-                .map_or("none".to_string(), |n| checkpoints.join(n.trim()).display().to_string());
+                .map_or("none".to_string(), |n| {
+                    checkpoints.join(n.trim()).display().to_string()
+                });
             return Err(e.context(format!(
                 "writing the final checkpoint (the latest complete one: {latest}; free space, then `selkd train --resume {}` continues from it)",
                 self.run_dir.display()

@@ -497,7 +497,10 @@ fn a_run_locked_by_another_selkd_is_left_alone_and_its_finish_there_is_success()
         "{seen}"
     );
     std::thread::sleep(Duration::from_secs(2));
-    assert!(child.try_wait().unwrap().is_none(), "it did not wait: {seen}");
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "it did not wait: {seen}"
+    );
     // The other runner finishes the run.
     let fin = run_dir.join("checkpoints/final");
     std::fs::create_dir_all(&fin).unwrap();

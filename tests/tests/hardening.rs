@@ -29,7 +29,10 @@ fn bad_inputs_are_one_line_errors_before_anything_starts() {
             &["--set", "algo.hidden=[65536,65536]"],
             "algo.hidden = [65536, 65536]",
         ),
-        (&["--set", "eval.episodes=1000000000"], "eval.episodes = 1000000000"),
+        (
+            &["--set", "eval.episodes=1000000000"],
+            "eval.episodes = 1000000000",
+        ),
         (&["--restart-window", "inf"], "--restart-window"),
         (&["--restart-window", "1e300"], "--restart-window"),
         (&["--restart-window", "nan"], "--restart-window"),
@@ -114,7 +117,9 @@ fn damaged_checkpoints_are_named_in_one_line_and_a_deleted_latest_falls_back() {
         "{err}"
     );
     assert!(
-        err.contains("final/replay.safetensors is missing although the run keeps its replay buffer"),
+        err.contains(
+            "final/replay.safetensors is missing although the run keeps its replay buffer"
+        ),
         "{err}"
     );
     let _ = std::fs::remove_dir_all(&dir);
@@ -138,7 +143,10 @@ fn a_state_with_non_finite_values_is_never_checkpointed_and_its_directory_starts
     let out = run(c);
     let err = stderr_of(&out);
     assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(err.contains("diverged") && err.contains("non-finite"), "{err}");
+    assert!(
+        err.contains("diverged") && err.contains("non-finite"),
+        "{err}"
+    );
     // Whatever was written holds only finite values (read here without the learner's code).
     let cp = dir.join("checkpoints");
     for entry in std::fs::read_dir(&cp).into_iter().flatten().flatten() {
