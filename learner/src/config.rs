@@ -582,6 +582,14 @@ impl Config {
                 return bad(format!("run.total_rounds = {rounds} ends within the warm-up (algo.warmup_steps = {} env steps are {warmup_rounds} rounds of K = {k} actors), so no critic update would happen; raise run.total_rounds to at least {warmup_rounds} or lower algo.warmup_steps", a.warmup_steps));
             }
         }
+        // Each actor plays its episodes every epoch; beyond this an epoch's evaluation outlasts
+        // any training it measures (1e9 held the run in evaluation for good).
+        if self.eval.episodes > MAX_EVAL_EPISODES {
+            return bad(format!(
+                "eval.episodes = {} is more than {MAX_EVAL_EPISODES} evaluation episodes per actor per epoch; lower it",
+                self.eval.episodes
+            ));
+        }
         if self.eval.epoch_env_steps == 0 || self.eval.episodes == 0 || self.eval.score_window == 0
         {
             return bad(
@@ -620,7 +628,89 @@ impl Config {
         if self.asynchronous.max_policy_lag == 0 {
             return bad("async.max_policy_lag must be at least 1".into());
         }
+        // Last, on a config that is otherwise sound: a run that cannot fit is refused here, not by
+        // an allocation failing (a libtorch abort) once the processes are up.
+        if dev == "cpu" {
+            if let Some(physical) = physical_memory() {
+                self.check_memory(physical)?;
+            }
+        }
         Ok(())
+    }
+
+    /// A lower bound of the bytes the learner holds for this config: the replay buffer (and
+    /// AVTD's validation rows), and per parameter of the K actors and N critics its value, its
+    /// gradient and Adam's two moments, plus the target critics (and TD3's target actors).
+    /// Activations and libtorch's workspace come on top, so a config above the machine's
+    /// memory surely fails.
+    pub fn memory_estimate(&self) -> Result<MemoryEstimate, ConfigError> {
+        let spec = self
+            .env_spec()
+            .map_err(|e| ConfigError::Invalid(one_line(&e.to_string())))?;
+        let a = &self.algo;
+        let (obs, act) = (spec.obs_dim as u128, spec.act_dim as u128);
+        let variants = a.variants.len().max(1) as u128;
+        // Weights and biases of one member of a stacked ensemble with these layer sizes.
+        let params = |input: u128, output: u128| -> u128 {
+            let dims: Vec<u128> = std::iter::once(input)
+                .chain(a.hidden.iter().map(|&h| h as u128))
+                .chain(std::iter::once(output))
+                .collect();
+            dims.windows(2)
+                .map(|w| w[0].saturating_mul(w[1]).saturating_add(w[1]))
+                .fold(0u128, u128::saturating_add)
+        };
+        let actors = (a.actors as u128) * variants;
+        let critics = (a.critics as u128) * variants;
+        // value + gradient + Adam's m and v; targets are one more copy.
+        let actor_copies = if a.backbone == Backbone::Td3 { 5 } else { 4 };
+        let actor_floats = params(obs, 2 * act)
+            .saturating_mul(actors)
+            .saturating_mul(actor_copies)
+            // log α per actor, with its gradient and moments
+            .saturating_add(4 * actors);
+        let critic_floats = params(obs + act, 1)
+            .saturating_mul(critics)
+            .saturating_mul(5);
+        let row = 2 * obs + act + 2;
+        let mut rows = a.replay_capacity as u128;
+        if !a.variants.is_empty() {
+            rows += (a.replay_capacity as u128 / a.validation_every.max(1) as u128).max(1);
+        }
+        let to_bytes = |floats: u128| floats.saturating_mul(4).min(u64::MAX as u128) as u64;
+        Ok(MemoryEstimate {
+            replay: to_bytes(rows.saturating_mul(row)),
+            networks: to_bytes(actor_floats.saturating_add(critic_floats)),
+        })
+    }
+
+    /// Refuses a config whose [`Self::memory_estimate`] exceeds `available` bytes, naming the key
+    /// that takes the most.
+    pub fn check_memory(&self, available: u64) -> Result<(), ConfigError> {
+        let m = self.memory_estimate()?;
+        if m.total() <= available {
+            return Ok(());
+        }
+        let what = if m.replay >= m.networks {
+            format!(
+                "algo.replay_capacity = {} takes {} of it",
+                self.algo.replay_capacity,
+                bytes(m.replay)
+            )
+        } else {
+            format!(
+                "the networks (algo.hidden = {:?}, algo.actors = {}, algo.critics = {}) with their gradients and Adam state take {}",
+                self.algo.hidden,
+                self.algo.actors,
+                self.algo.critics,
+                bytes(m.networks)
+            )
+        };
+        Err(ConfigError::Invalid(format!(
+            "this run needs at least {} of memory, more than this machine's {}: {what}; lower it",
+            bytes(m.total()),
+            bytes(available)
+        )))
     }
 
     pub fn warmup_per_actor(&self) -> u64 {
@@ -650,6 +740,54 @@ impl Config {
     /// The fingerprint of `[env_options]` that learner and workers compare in the handshake.
     pub fn env_options_fingerprint(&self) -> u64 {
         selkd_envs::options_fingerprint(&self.env_options)
+    }
+}
+
+/// Most evaluation episodes per actor per epoch (`eval.episodes`).
+pub const MAX_EVAL_EPISODES: usize = 1000;
+
+/// What [`Config::memory_estimate`] counts, in bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MemoryEstimate {
+    pub replay: u64,
+    pub networks: u64,
+}
+
+impl MemoryEstimate {
+    pub fn total(&self) -> u64 {
+        self.replay.saturating_add(self.networks)
+    }
+}
+
+/// This machine's physical memory (`MemTotal` of /proc/meminfo), if it can be read. Physical, not
+/// what is free now: a run that fits the machine may wait for memory others hold, one that does
+/// not fit can never run.
+pub fn physical_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let kb: u64 = text
+        .lines()
+        .find_map(|l| l.strip_prefix("MemTotal:"))?
+        .trim()
+        .strip_suffix("kB")?
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kb.saturating_mul(1024))
+}
+
+/// Bytes for people: `36.0 TB`, `512.0 MB`.
+pub fn bytes(n: u64) -> String {
+    let units = ["B", "kB", "MB", "GB", "TB", "PB", "EB"];
+    let mut v = n as f64;
+    let mut i = 0;
+    while v >= 1000.0 && i + 1 < units.len() {
+        v /= 1000.0;
+        i += 1;
+    }
+    if i == 0 {
+        format!("{n} B")
+    } else {
+        format!("{v:.1} {}", units[i])
     }
 }
 
@@ -1029,6 +1167,57 @@ mod tests {
         .unwrap();
         let e = err("", &["run.total_rounds=9223372036854775807"]);
         assert!(e.contains("overflows"), "{e}");
+    }
+
+    /// Counted by hand for Pendulum (obs 3, act 1), hidden [8], K = 2, N = 3, 100 replay rows:
+    /// an actor is 3·8+8 + 8·2+2 = 50 parameters, ×2 actors ×4 (value, gradient, m, v) = 400,
+    /// plus log α 2×4 = 8; a critic is 4·8+8 + 8·1+1 = 49, ×3 critics ×5 (and the target) = 735;
+    /// a row is 3+1+1+3+1 = 9 floats, ×100 = 900. Floats are 4 bytes.
+    #[test]
+    fn the_memory_estimate_counts_replay_networks_and_adam_state() {
+        let c = Config::from_toml_with_overrides(
+            "",
+            &[
+                "algo.hidden=[8]",
+                "algo.actors=2",
+                "algo.critics=3",
+                "algo.replay_capacity=100",
+                "algo.batch_size=10",
+                "algo.warmup_steps=10",
+            ]
+            .map(String::from),
+        )
+        .unwrap();
+        let m = c.memory_estimate().unwrap();
+        assert_eq!(m.replay, 900 * 4);
+        assert_eq!(m.networks, (400 + 8 + 735) * 4);
+        assert!(c.check_memory(m.total()).is_ok());
+        let e = c.check_memory(m.total() - 1).unwrap_err().to_string();
+        // 4 572 bytes of networks outweigh 3 600 of replay: the networks' keys are named.
+        assert!(
+            e.contains("needs at least 8.2 kB")
+                && e.contains("algo.hidden = [8]")
+                && e.contains("take 4.6 kB"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn configs_the_machine_cannot_hold_are_refused_naming_the_key() {
+        // 1e12 rows of 9 floats: 36 TB of replay.
+        let e = err("", &["algo.replay_capacity=1000000000000"]);
+        assert!(
+            e.contains("algo.replay_capacity = 1000000000000 takes 36.0 TB"),
+            "{e}"
+        );
+        // Ten critics of 65536² weights are 172 GB each with their Adam state.
+        let e = err("", &["algo.hidden=[65536, 65536]"]);
+        assert!(
+            e.contains("algo.hidden = [65536, 65536]") && !e.contains('\n'),
+            "{e}"
+        );
+        let e = err("", &["eval.episodes=1000000000"]);
+        assert!(e.contains("eval.episodes = 1000000000"), "{e}");
     }
 
     #[test]

@@ -174,7 +174,12 @@ impl Learner {
         if resumed.is_some() && replay.is_empty() {
             // Nothing to sample from: training waits for another warm-up's worth of data.
             limiter.refill(inserted, selkd.actor_updates);
-            tracing::warn!("the checkpoint holds no replay buffer: training resumes once {} new transitions (a warm-up's worth, from the current policies) refill it (set run.checkpoint_replay = true to keep it)", limiter.warmup_end() - inserted);
+            let why = if cfg.run.checkpoint_replay {
+                "its replay.safetensors is missing although run.checkpoint_replay = true"
+            } else {
+                "run.checkpoint_replay = false"
+            };
+            tracing::warn!("the checkpoint holds no replay buffer ({why}): training resumes once {} new transitions (a warm-up's worth, from the current policies) refill it", limiter.warmup_end() - inserted);
         }
         Ok(Self {
             limiter,
@@ -372,6 +377,9 @@ impl Learner {
                 // A periodic checkpoint that fails (a full disk) is not the end of the run: the
                 // next one tries again. Only the final one must succeed.
                 if let Err(e) = self.checkpoint(&format!("step-{}", self.inserted)) {
+                    if e.downcast_ref::<checkpoint::NonFinite>().is_some() {
+                        return Err(e.context(format!("at {} env steps", self.inserted)));
+                    }
                     tracing::error!("checkpoint at {} env steps failed: {e:#}; training goes on, the next checkpoint tries again", self.inserted);
                 }
                 self.next_checkpoint += self.cfg.run.checkpoint_every;
@@ -437,15 +445,20 @@ impl Learner {
             }
         }
         self.log_epochs()?;
-        self.checkpoint("final").with_context(|| {
+        if let Err(e) = self.checkpoint("final") {
+            if e.downcast_ref::<checkpoint::NonFinite>().is_some() {
+                return Err(e);
+            }
             let checkpoints = self.run_dir.join("checkpoints");
             let latest = std::fs::read_to_string(checkpoints.join("latest"))
-                .map_or("none".to_string(), |n| checkpoints.join(n.trim()).display().to_string());
-            format!(
+                .map_or("none".to_string(), |n| {
+                    checkpoints.join(n.trim()).display().to_string()
+                });
+            return Err(e.context(format!(
                 "writing the final checkpoint (the latest complete one: {latest}; free space, then `selkd train --resume {}` continues from it)",
                 self.run_dir.display()
-            )
-        })?;
+            )));
+        }
         // Give workers a moment to read the stop order before the node (and its history) goes away.
         std::thread::sleep(Duration::from_millis(200));
         tracing::info!(

@@ -442,8 +442,12 @@ fn a_failed_run_is_reported_with_its_log_and_the_others_go_on() {
     let _ = std::fs::remove_dir_all(&root);
 }
 
+/// A run another runner holds is left alone and waited for: once that runner finishes it (here:
+/// a final checkpoint at the budget appears and the lock is released), this runner counts it as
+/// finished and exits 0, as a Slurm array's second task should (it exited 1 before).
 #[test]
-fn a_run_locked_by_another_selkd_is_left_alone() {
+fn a_run_locked_by_another_selkd_is_left_alone_and_its_finish_there_is_success() {
+    use std::io::BufRead;
     use std::os::fd::AsRawFd;
     let text = format!("{ONE}[[method]]\nname = \"a\"\nconfig = \"tiny.toml\"\n");
     let (root, exp) = setup("exp-locked", &text);
@@ -452,22 +456,44 @@ fn a_run_locked_by_another_selkd_is_left_alone() {
     // What another `selkd experiment run` training this run holds.
     let lock = std::fs::File::create(run_dir.join(".selkd.lock")).unwrap();
     assert_eq!(unsafe { libc::flock(lock.as_raw_fd(), libc::LOCK_EX) }, 0);
-    let out = run({
+    let mut child = spawn({
         let mut c = experiment(&["run"]);
         c.arg(&exp).arg("--dir").arg(root.join("runs"));
         c
     });
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut seen = String::new();
+    let mut line = String::new();
+    while !seen.contains("is being trained by another selkd") {
+        line.clear();
+        assert!(stderr.read_line(&mut line).unwrap() > 0, "{seen}");
+        seen.push_str(&line);
+    }
     assert!(
-        stderr.contains("run a/pendulum/seed-1 is being trained by another selkd"),
-        "{stderr}"
+        seen.contains("run a/pendulum/seed-1 is being trained by another selkd")
+            && seen.contains("waiting for it"),
+        "{seen}"
     );
+    std::thread::sleep(Duration::from_secs(2));
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "it did not wait: {seen}"
+    );
+    // The other runner finishes the run.
+    let fin = run_dir.join("checkpoints/final");
+    std::fs::create_dir_all(&fin).unwrap();
+    std::fs::write(fin.join("state.json"), "{\"inserted\": 1000}").unwrap();
+    std::fs::write(run_dir.join("checkpoints/latest"), "final\n").unwrap();
+    drop(lock);
+    let status = child.wait().unwrap();
+    let mut rest = String::new();
+    let _ = std::io::Read::read_to_string(&mut stderr, &mut rest);
+    assert_eq!(status.code(), Some(0), "{seen}{rest}");
+    assert!(rest.contains("1/1 runs finished"), "{rest}");
     assert!(
         !run_dir.join("logs").exists(),
-        "it was started anyway: {stderr}"
+        "it was started anyway: {seen}{rest}"
     );
-    drop(lock);
     let _ = std::fs::remove_dir_all(&root);
 }
 

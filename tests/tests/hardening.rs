@@ -1,0 +1,234 @@
+//! End to end, issue 30: no input crashes the launcher (memory it cannot hold, unbounded
+//! windows and episode counts are one-line errors before anything starts); damaged or missing
+//! checkpoint files are one line naming the file, a deleted `latest` falls back to the newest
+//! complete checkpoint, a missing replay buffer is said on the terminal; a state with non-finite
+//! values is never checkpointed; a run directory without a checkpoint is never stuck; SIGTERM to
+//! the learner alone makes selkd exit 143.
+
+mod common;
+use common::*;
+use std::io::BufRead;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+fn stderr_of(out: &std::process::Output) -> String {
+    String::from_utf8_lossy(&out.stderr).to_string()
+}
+
+/// Every input the careful tester crashed or slipped past the launcher with: each is refused
+/// before any process starts, in one line that names what to change.
+#[test]
+fn bad_inputs_are_one_line_errors_before_anything_starts() {
+    let root = temp_dir("bad-inputs");
+    let cases: &[(&[&str], &str)] = &[
+        (
+            &["--set", "algo.replay_capacity=1000000000000"],
+            "algo.replay_capacity = 1000000000000 takes 36.0 TB",
+        ),
+        (
+            &["--set", "algo.hidden=[65536,65536]"],
+            "algo.hidden = [65536, 65536]",
+        ),
+        (
+            &["--set", "eval.episodes=1000000000"],
+            "eval.episodes = 1000000000",
+        ),
+        (&["--restart-window", "inf"], "--restart-window"),
+        (&["--restart-window", "1e300"], "--restart-window"),
+        (&["--restart-window", "nan"], "--restart-window"),
+        (&["--restart-window", "-5"], "--restart-window"),
+        (&["--restart-window", "0"], "--restart-window"),
+    ];
+    for (i, (args, says)) in cases.iter().enumerate() {
+        let dir = root.join(format!("run-{i}"));
+        let out = run({
+            let mut c = train(&dir, &[]);
+            c.args(*args);
+            c
+        });
+        let err = stderr_of(&out);
+        assert!(!out.status.success(), "{args:?} was accepted: {err}");
+        assert!(err.contains(says), "{args:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{args:?}: one line: {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+        assert!(!dir.exists(), "{args:?}: a run directory was made");
+    }
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// A run with three checkpoints, each then damaged another way.
+#[test]
+fn damaged_checkpoints_are_named_in_one_line_and_a_deleted_latest_falls_back() {
+    let dir = temp_dir("damaged");
+    let sets = small_run(&[
+        "algo.actors=2",
+        "run.total_env_steps=1200",
+        "run.checkpoint_every=500",
+        "run.checkpoint_replay=true",
+    ]);
+    assert_success(&run(train(&dir, &sets)), &dir);
+    let cp = dir.join("checkpoints");
+    for c in ["step-500", "step-1000", "final"] {
+        assert!(cp.join(c).join("replay.safetensors").exists(), "{c}");
+    }
+    let resume = |target: &Path, extra: &[&str]| {
+        let mut c = train(&dir, &small_run(extra));
+        c.arg("--resume").arg(target);
+        run(c)
+    };
+    // A missing model file.
+    std::fs::remove_file(cp.join("step-500/model.safetensors")).unwrap();
+    let out = resume(&cp.join("step-500"), &[]);
+    let err = stderr_of(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("step-500/model.safetensors is missing") && !err.contains("IoError"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    // A truncated one.
+    let model = cp.join("step-1000/model.safetensors");
+    let len = std::fs::metadata(&model).unwrap().len();
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&model)
+        .unwrap()
+        .set_len(len / 2)
+        .unwrap();
+    let out = resume(&cp.join("step-1000"), &[]);
+    let err = stderr_of(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("step-1000/model.safetensors is damaged: truncated")
+            && !err.contains("MetadataIncompleteBuffer"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    // `latest` deleted, and final's replay buffer: the run resumes from final (the only complete
+    // one), says so, and says that the buffer is missing.
+    std::fs::remove_file(cp.join("latest")).unwrap();
+    std::fs::remove_file(cp.join("final/replay.safetensors")).unwrap();
+    let out = resume(&dir, &["run.total_env_steps=1800"]);
+    let err = stderr_of(&out);
+    assert_success(&out, &dir);
+    assert!(
+        err.contains("latest is missing; resuming from the newest complete checkpoint")
+            && err.contains("checkpoints/final (1200 env steps)"),
+        "{err}"
+    );
+    assert!(
+        err.contains(
+            "final/replay.safetensors is missing although the run keeps its replay buffer"
+        ),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `algo.lr = 1e4` on configs/quick.toml: round 1's losses are finite, but the critics' Adam
+/// second moments overflow; the checkpoint due then is not written and the run ends as diverged.
+/// The directory, without a checkpoint, then starts anew.
+#[test]
+fn a_state_with_non_finite_values_is_never_checkpointed_and_its_directory_starts_anew() {
+    let dir = temp_dir("nonfinite");
+    let mut c = train(&dir, &[]);
+    c.args([
+        "--set",
+        "algo.lr=1e4",
+        "--set",
+        "run.total_env_steps=3000",
+        "--set",
+        "run.checkpoint_every=1500",
+    ]);
+    let out = run(c);
+    let err = stderr_of(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("diverged") && err.contains("non-finite"),
+        "{err}"
+    );
+    // Whatever was written holds only finite values (read here without the learner's code).
+    let cp = dir.join("checkpoints");
+    for entry in std::fs::read_dir(&cp).into_iter().flatten().flatten() {
+        let model = entry.path().join("model.safetensors");
+        if model.exists() {
+            for (name, (_, values)) in read_safetensors(&model) {
+                assert!(
+                    values.iter().all(|v| v.is_finite()),
+                    "{}: {name} is not finite",
+                    model.display()
+                );
+            }
+        }
+    }
+    assert!(
+        !cp.join("latest").exists(),
+        "`latest` names a checkpoint of a diverged state"
+    );
+    // Not stuck: --resume says how to start anew, and a plain start does.
+    let mut c = train(&dir, &[]);
+    c.arg("--resume").arg(&dir);
+    let out = run(c);
+    let err = stderr_of(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("stopped before its first checkpoint") && err.contains("start it anew"),
+        "{err}"
+    );
+    let out = run(train(
+        &dir,
+        &small_run(&["algo.actors=2", "run.total_env_steps=1000"]),
+    ));
+    let err = stderr_of(&out);
+    assert_success(&out, &dir);
+    assert!(err.contains("starting it anew"), "{err}");
+    let (header, rows) = metrics(&dir);
+    assert_eq!(header[0], "epoch");
+    assert_eq!(rows.len(), 1, "one epoch of the new run, none of the old");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The learner killed before its first checkpoint (SIGKILL: it writes nothing), then the same
+/// directory started again; and SIGTERM to the learner alone: selkd exits 143, not 130.
+#[test]
+fn a_killed_learner_leaves_no_stuck_directory_and_sigterm_to_it_reads_143() {
+    for (sig, code) in [(libc::SIGKILL, 1), (libc::SIGTERM, 143)] {
+        let dir = temp_dir(&format!("learner-sig{sig}"));
+        let mut child = spawn(train(
+            &dir,
+            &small_run(&[
+                "algo.actors=2",
+                "run.total_env_steps=1000000",
+                "run.checkpoint_every=0",
+            ]),
+        ));
+        let (id, mut stderr) = run_id(&mut child);
+        let deadline = Instant::now() + Duration::from_secs(120);
+        while env_steps_so_far(&dir) < 600 {
+            assert!(Instant::now() < deadline, "the run made no progress");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        let pid = learner_pid(&id).expect("the learner runs");
+        unsafe { libc::kill(pid, sig) };
+        let status = child.wait().unwrap();
+        let mut rest = String::new();
+        let mut line = String::new();
+        while stderr.read_line(&mut line).unwrap_or(0) > 0 {
+            rest.push_str(&line);
+            line.clear();
+        }
+        assert_eq!(status.code(), Some(code), "signal {sig}: {rest}");
+        if sig == libc::SIGKILL {
+            assert!(!dir.join("checkpoints/final").exists());
+            let out = run(train(
+                &dir,
+                &small_run(&["algo.actors=2", "run.total_env_steps=1000"]),
+            ));
+            assert_success(&out, &dir);
+            assert!(stderr_of(&out).contains("starting it anew"));
+        } else {
+            assert!(rest.contains("selkd: stopped; checkpoint at"), "{rest}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
