@@ -103,42 +103,35 @@ fn one_line(py: Python<'_>, e: &PyErr) -> String {
     format!("{kind}: {msg}")
 }
 
-/// The glue module, made once per process (adding the venv to the path first).
+/// The glue module, made once per process (adding the venv to the path first). A PyO3 once-cell,
+/// not a mutex: Python may let another thread run in the middle of an import, and a thread that
+/// then waited on a mutex while holding the interpreter would deadlock with the importer.
 fn glue(py: Python<'_>) -> PyResult<Py<PyModule>> {
-    static GLUE_MODULE: Mutex<Option<Py<PyModule>>> = Mutex::new(None);
-    let mut slot = GLUE_MODULE.lock().unwrap_or_else(|e| e.into_inner());
-    if let Some(m) = slot.as_ref() {
-        return Ok(m.clone_ref(py));
-    }
-    let sys = py.import("sys")?;
-    let version: (u8, u8) = sys
-        .getattr("version_info")?
-        .get_item(0)?
-        .extract::<u8>()
-        .and_then(|major| {
-            Ok((
-                major,
-                sys.getattr("version_info")?.get_item(1)?.extract::<u8>()?,
-            ))
-        })?;
-    let site = venv()
-        .join("lib")
-        .join(format!("python{}.{}", version.0, version.1))
-        .join("site-packages");
-    if site.is_dir() {
-        py.import("site")?
-            .call_method1("addsitedir", (site.to_string_lossy().as_ref(),))?;
-    }
-    let code = CString::new(GLUE).expect("no NUL in the glue");
-    let m = PyModule::from_code(
-        py,
-        &code,
-        c"selkd_gymnasium_glue.py",
-        c"selkd_gymnasium_glue",
-    )?;
-    let m: Py<PyModule> = m.unbind();
-    *slot = Some(m.clone_ref(py));
-    Ok(m)
+    static GLUE_MODULE: pyo3::sync::PyOnceLock<Py<PyModule>> = pyo3::sync::PyOnceLock::new();
+    GLUE_MODULE
+        .get_or_try_init(py, || -> PyResult<Py<PyModule>> {
+            let sys = py.import("sys")?;
+            let info = sys.getattr("version_info")?;
+            let (major, minor): (u8, u8) =
+                (info.get_item(0)?.extract()?, info.get_item(1)?.extract()?);
+            let site = venv()
+                .join("lib")
+                .join(format!("python{major}.{minor}"))
+                .join("site-packages");
+            if site.is_dir() {
+                py.import("site")?
+                    .call_method1("addsitedir", (site.to_string_lossy().as_ref(),))?;
+            }
+            let code = CString::new(GLUE).expect("no NUL in the glue");
+            let m = PyModule::from_code(
+                py,
+                &code,
+                c"selkd_gymnasium_glue.py",
+                c"selkd_gymnasium_glue",
+            )?;
+            Ok(m.unbind())
+        })
+        .map(|m| m.clone_ref(py))
 }
 
 fn options_error(name: &str, message: String) -> EnvError {
@@ -393,5 +386,142 @@ impl Drop for GymEnv {
         Python::attach(|py| {
             let _ = self.env.bind(py).call_method0("close");
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Makes `gymnasium:<id>` with the test module `tests/python/selkd_test_gym.py` importable.
+    fn test_env(id: &str, options: &str) -> Result<Box<dyn Env>, EnvError> {
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/python");
+        Python::attach(|py| {
+            let path = py.import("sys").unwrap().getattr("path").unwrap();
+            if !path.contains(dir).unwrap() {
+                path.call_method1("insert", (0, dir)).unwrap();
+            }
+        });
+        let mut o: EnvOptions = toml::from_str(options).unwrap();
+        o.insert(
+            IMPORT_KEY.into(),
+            toml::Value::Array(vec!["selkd_test_gym".into()]),
+        );
+        make(&format!("{PREFIX}{id}"), &o)
+    }
+
+    #[test]
+    fn actions_map_affinely_onto_the_box_and_observations_are_flattened() {
+        let mut env = test_env("SelkdEcho-v0", "").unwrap();
+        let s = env.spec().clone();
+        assert_eq!(
+            (s.id, s.obs_dim, s.act_dim, s.max_episode_steps),
+            ("gymnasium:SelkdEcho-v0", 4, 2, 50)
+        );
+        env.reset(Some(3));
+        // [-1, 1] → [-2, 2] and [0, 1]; out of range is clipped first.
+        for (a, want) in [
+            ([-1.0f32, -1.0], [-2.0f32, 0.0]),
+            ([1.0, 1.0], [2.0, 1.0]),
+            ([0.0, 0.0], [0.0, 0.5]),
+            ([0.5, -0.5], [1.0, 0.25]),
+            ([7.0, -7.0], [2.0, 0.0]),
+        ] {
+            let st = env.step(&a);
+            assert_eq!(
+                st.obs,
+                vec![want[0], want[1], want[0], want[1]],
+                "action {a:?}"
+            );
+            let r = -(want[0] as f64).powi(2) - (want[1] as f64).powi(2);
+            assert!((st.reward - r).abs() < 1e-6, "{} vs {r}", st.reward);
+            assert!(!st.terminated && !st.truncated);
+        }
+        assert!(env.failure().is_none());
+    }
+
+    #[test]
+    fn a_seed_replays_its_episode_and_the_time_limit_truncates() {
+        let mut env = test_env("SelkdEcho-v0", "").unwrap();
+        let (a, b, c) = (env.reset(Some(7)), env.reset(Some(7)), env.reset(Some(8)));
+        assert_eq!(a, b);
+        assert_ne!(a, c);
+        let ends: Vec<(bool, bool)> = (0..50)
+            .map(|_| {
+                let s = env.step(&[0.0, 0.0]);
+                (s.terminated, s.truncated)
+            })
+            .collect();
+        assert!(ends[..49].iter().all(|e| *e == (false, false)));
+        assert_eq!(
+            ends[49],
+            (false, true),
+            "truncated, not terminated, at the limit"
+        );
+    }
+
+    #[test]
+    fn an_exception_ends_the_episode_and_says_why_and_nan_ends_it_quietly() {
+        let mut env = test_env("SelkdEcho-v0", "boom_at = 3").unwrap();
+        env.reset(Some(0));
+        assert!(env.step(&[0.0, 0.0]).obs.iter().all(|x| x.is_finite()));
+        env.step(&[0.0, 0.0]);
+        let s = env.step(&[0.0, 0.0]);
+        assert!(s.terminated && s.obs == vec![0.0; 4]);
+        let why = env.failure().expect("a failure");
+        assert!(
+            why.contains("RuntimeError: boom at step 3") && !why.contains('\n'),
+            "{why}"
+        );
+        let mut env = test_env("SelkdEcho-v0", "nan_every = 2").unwrap();
+        env.reset(Some(0));
+        assert!(!env.step(&[0.0, 0.0]).terminated);
+        let s = env.step(&[0.0, 0.0]);
+        assert!(s.terminated && s.obs.iter().all(|x| *x == 0.0));
+        assert!(
+            env.failure().is_none(),
+            "a NaN is the env's state, not a failure"
+        );
+    }
+
+    #[test]
+    fn bad_ids_spaces_keywords_and_imports_are_one_line_errors() {
+        let err = |id: &str, o: &str| match test_env(id, o) {
+            Ok(_) => panic!("{id} {o}: accepted"),
+            Err(e) => e.to_string(),
+        };
+        for (id, o, says) in [
+            ("SelkdEcho-v9", "", "VersionNotFound"),
+            ("SelkdEcoh-v0", "", "Did you mean"),
+            ("SelkdUnbounded-v0", "", "infinite bound"),
+            ("SelkdDiscrete-v0", "", "Discrete(3); only Box spaces"),
+            (
+                "SelkdEcho-v0",
+                "frobnicate = 1",
+                "unexpected keyword argument 'frobnicate'",
+            ),
+        ] {
+            let e = err(id, o);
+            assert!(e.contains(says) && !e.contains('\n'), "{id} {o}: {e}");
+        }
+        let o: EnvOptions = toml::from_str("import = 3").unwrap();
+        let e = make("gymnasium:SelkdEcho-v0", &o)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("list of module names"), "{e}");
+        let mut o = EnvOptions::new();
+        o.insert(
+            IMPORT_KEY.into(),
+            toml::Value::Array(vec!["no_such_module_x".into()]),
+        );
+        let e = make("gymnasium:SelkdEcho-v0", &o)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("No module named 'no_such_module_x'") && e.contains("pip install"),
+            "{e}"
+        );
     }
 }

@@ -426,6 +426,14 @@ impl Config {
     pub fn validate(&self) -> Result<(), ConfigError> {
         let a = &self.algo;
         let bad = |m: String| Err(ConfigError::Invalid(m));
+        if self.run.env.len() > selkd_protocol::NAME_BYTES {
+            return bad(format!(
+                "run.env = \"{}\" is {} bytes; the processes' messages carry at most {}",
+                self.run.env,
+                self.run.env.len(),
+                selkd_protocol::NAME_BYTES
+            ));
+        }
         match self.env_spec() {
             Err(selkd_envs::EnvError::Unknown { .. }) => {
                 return bad(format!(

@@ -52,6 +52,8 @@ pub fn parse_device(s: &str) -> Result<Device> {
 
 pub struct Learner {
     cfg: Config,
+    /// The env's spec, made once: a `gymnasium:` env is a `gymnasium.make` in Python.
+    spec: selkd_envs::EnvSpec,
     run_dir: PathBuf,
     k: usize,
     row: TransitionRow,
@@ -182,6 +184,7 @@ impl Learner {
             tracing::warn!("the checkpoint holds no replay buffer ({why}): training resumes once {} new transitions (a warm-up's worth, from the current policies) refill it", limiter.warmup_end() - inserted);
         }
         Ok(Self {
+            spec: spec.clone(),
             limiter,
             ranking: resumed.as_ref().map_or_else(
                 || Ranking::new(k, cfg.eval.score_window),
@@ -483,7 +486,7 @@ impl Learner {
         self.watchdog.heard(w, Instant::now());
         match r.kind {
             ReportKind::Hello => {
-                let spec = self.cfg.env_spec().expect("validated");
+                let spec = &self.spec;
                 if r.protocol_version != PROTOCOL_VERSION
                     || r.env.as_str() != spec.id
                     || r.env_options != self.cfg.env_options_fingerprint()
@@ -690,7 +693,7 @@ impl Learner {
     }
 
     fn control(&self, stop: bool) -> Control {
-        let spec = self.cfg.env_spec().expect("validated");
+        let spec = &self.spec;
         let per_actor_cap = self.cfg.steps_per_actor();
         let mut budget = [0u64; MAX_ACTORS];
         match self.cfg.run.mode {

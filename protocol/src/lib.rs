@@ -28,7 +28,7 @@ pub mod lock;
 use iceoryx2::prelude::*;
 
 /// Bumped whenever a message layout or meaning changes; checked in the handshake.
-pub const PROTOCOL_VERSION: u32 = 4;
+pub const PROTOCOL_VERSION: u32 = 5;
 /// Most actors a run may have (fixed arrays in [`Control`] and [`Ranking`]).
 pub const MAX_ACTORS: usize = 64;
 pub const MAX_HIDDEN_LAYERS: usize = 8;
@@ -39,18 +39,27 @@ pub const TRANSITION_BUFFER: usize = 16_384;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
 #[repr(C)]
 #[type_name("selkd::Name")]
-#[derive(Default)]
-pub struct Name(pub [u8; 32]);
+pub struct Name(pub [u8; NAME_BYTES]);
+
+impl Default for Name {
+    fn default() -> Self {
+        Name([0; NAME_BYTES])
+    }
+}
+
+/// The longest name a message carries: room for `gymnasium:` ids of third-party packages
+/// (`gymnasium:InvertedDoublePendulum-v5` is already 35 bytes). Configs are checked against it.
+pub const NAME_BYTES: usize = 96;
 
 impl Name {
     pub fn new(s: &str) -> Self {
-        let mut b = [0u8; 32];
-        let n = s.len().min(32);
+        let mut b = [0u8; NAME_BYTES];
+        let n = s.len().min(NAME_BYTES);
         b[..n].copy_from_slice(&s.as_bytes()[..n]);
         Name(b)
     }
     pub fn as_str(&self) -> &str {
-        let end = self.0.iter().position(|&c| c == 0).unwrap_or(32);
+        let end = self.0.iter().position(|&c| c == 0).unwrap_or(NAME_BYTES);
         std::str::from_utf8(&self.0[..end]).unwrap_or("<invalid>")
     }
 }

@@ -1,0 +1,51 @@
+"""Gymnasium envs that misbehave on purpose, for the tests of `gymnasium:` envs.
+
+`SelkdEcho-v0` echoes the action it received (after selkd mapped it onto its Box [-2, 2] x [0, 1])
+as its observation; with `boom_at=N` its step raises at step N; with `nan_every=N` every Nth
+observation is NaN. `SelkdUnbounded-v0` has an action space with infinite bounds and
+`SelkdDiscrete-v0` a Discrete one.
+"""
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+
+class Echo(gym.Env):
+    def __init__(self, boom_at=0, nan_every=0):
+        self.observation_space = spaces.Box(-np.inf, np.inf, (2, 2), np.float64)
+        self.action_space = spaces.Box(
+            np.array([-2.0, 0.0], dtype=np.float32), np.array([2.0, 1.0], dtype=np.float32)
+        )
+        self.boom_at, self.nan_every, self.t = boom_at, nan_every, 0
+
+    def reset(self, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return np.full((2, 2), self.np_random.uniform(-0.1, 0.1)), {}
+
+    def step(self, action):
+        self.t += 1
+        if self.boom_at and self.t >= self.boom_at:
+            raise RuntimeError(f"boom at step {self.t}")
+        a = np.asarray(action, dtype=np.float64)
+        obs = np.array([[a[0], a[1]], [a[0], a[1]]])
+        if self.nan_every and self.t % self.nan_every == 0:
+            obs[0, 0] = np.nan
+        return obs, -float(np.sum(a * a)), False, False, {}
+
+
+class Unbounded(Echo):
+    def __init__(self):
+        super().__init__()
+        self.action_space = spaces.Box(-np.inf, np.inf, (2,), np.float32)
+
+
+class Discrete(Echo):
+    def __init__(self):
+        super().__init__()
+        self.action_space = spaces.Discrete(3)
+
+
+gym.register("SelkdEcho-v0", entry_point=Echo, max_episode_steps=50)
+gym.register("SelkdUnbounded-v0", entry_point=Unbounded, max_episode_steps=50)
+gym.register("SelkdDiscrete-v0", entry_point=Discrete, max_episode_steps=50)
