@@ -482,4 +482,66 @@ mod tests {
             .collect();
         println!("50x1 reference: gait {gait:?} m");
     }
+
+    /// Issue 32's convergence table for the cheetah's sine gait: `cargo test --release -p
+    /// selkd-envs halfcheetah::tests::fidelity -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn fidelity() {
+        let settings: Vec<SimParams> = [(5, 1), (2, 2), (5, 2), (10, 1)]
+            .map(|(substeps, solver_iterations)| SimParams {
+                control_dt: CONTROL_DT,
+                substeps,
+                solver_iterations,
+            })
+            .to_vec();
+        crate::testing::fidelity_table(
+            "halfcheetah",
+            HalfCheetah::with_sim,
+            &settings,
+            0..2,
+            |e| e.qpos()[0],
+            |_, t| gait(&GAIT, t).to_vec(),
+        );
+    }
+
+    /// Issue 32's reward band: a uniform random policy's and a standing (zero-action) policy's
+    /// mean returns over seeds 0–9. The bands are our own measurement at [`SIM`] (random −538.5, standing 0.6),
+    /// widened by about half and 20, not a MuJoCo measurement: a physics or reward change that moves
+    /// either far (a reward paying for an exploit, standing that no longer stands) fails here.
+    #[test]
+    fn random_and_standing_returns_stay_in_band() {
+        let mut env = HalfCheetah::new();
+        let (random, standing) =
+            crate::testing::random_and_standing_returns::<_, NA>(&mut env, 0..10);
+        println!("halfcheetah: random {random:.1}, standing {standing:.1}");
+        assert!(
+            (-810.0..-270.0).contains(&random),
+            "random-policy mean return {random}"
+        );
+        assert!(
+            (-20.0..20.0).contains(&standing),
+            "standing mean return {standing}"
+        );
+    }
+
+    /// Issue 32, converged: the sine gait at [`SIM`] against 10× finer integration, distance
+    /// and return within 15%. FAILS today (measured: 530 m against 35 m); ignored until the
+    /// cheetah's integration error is found (issue 32; what was ruled out is in
+    /// docs/results/fidelity.md).
+    #[test]
+    #[ignore]
+    fn gait_converges_under_10x_finer_integration() {
+        let gaps = crate::testing::gaps_to_10x_finer(
+            HalfCheetah::with_sim,
+            SIM,
+            0..2,
+            |e| e.qpos()[0],
+            |_, t| gait(&GAIT, t).to_vec(),
+        );
+        assert!(
+            gaps[..2].iter().all(|g| *g < 0.15),
+            "gaps (distance, return, length) {gaps:?}"
+        );
+    }
 }
