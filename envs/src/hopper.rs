@@ -33,16 +33,17 @@ use rapier3d::prelude::PhysicsWorld;
 
 const GEAR: f32 = 200.0;
 const CONTROL_DT: f32 = 0.008;
-/// Physics integration per control step: one rapier step of 8 ms with 4 solver iterations.
+/// Physics integration per control step: one rapier step of 8 ms with 8 solver iterations
+/// (rapier's TGS substeps, so 1 ms each).
 ///
-/// Rapier's TGS solver substeps inside a step (4 × 2 ms here, MuJoCo's own 0.002 s timestep),
-/// while the multibody's articulated dynamics are assembled once per step; joint damping and
-/// armature are implicit. Measured on saturated bang-bang torques for 1000 steps and on random
-/// episodes (2-core machine), every setting from 1×2 to 8×8 (rapier steps × iterations) stayed
-/// finite and on the floor, and all diverge alike from the 8×8 reference after 25 random steps
-/// (chaotic contact, ~0.15 in `qpos`). Joint-limit overshoot: 1×2 0.022 rad, 1×4 0.003 rad,
-/// 2×4 0.002 rad; random-episode speed: 1×2 38k, 1×4 25k, 2×4 13k, 4×4 7k steps/s. 1×4 is
-/// the cheapest setting that holds the limits well; more iterations cost about linearly.
+/// Chosen for convergence (issue 32, `docs/results/fidelity.md`; `tests::fidelity` prints the
+/// table): the scripted gait at 1×8 and integrated 10× finer (10×8) agrees within 3% in
+/// distance and 0% in return and episode length over 24 seeds. The old 1×4 (2 ms TGS substeps)
+/// did not: its gait, climbed at 1×4, survived 1000 steps only there and fell after ~200 steps
+/// at 10×4 (return 955 against 242). What matters is the TGS substep length: 2×4 (also 1 ms)
+/// converges too, 2×2 (2 ms) does not. 1×8 runs at about 0.6–0.8× 1×4's speed and twice 2×4's.
+/// Earlier measurements (bang-bang torques, random episodes): every setting from 1×2 to 8×8
+/// stayed finite and on the floor; joint-limit overshoot 1×2 0.022 rad, 1×4 0.003 rad.
 pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
     substeps: 1,
