@@ -73,6 +73,12 @@ const CONTROL_DT: f32 = 0.05;
 /// seed. Training wall-clock is set by the learner (an
 /// update costs some 60× an env step here), not by the env, so 5×1 stays the default;
 /// `[env_options] substeps = 2` gives the fast setting.
+///
+/// Not converged (issue 32, `docs/results/fidelity.md`, `tests::fidelity`): the sine gait goes
+/// 530 m at 5×1 and 35 m at 50×1; 2×2, 5×2 and 10×1 are as far off. Contact softness (8–60 Hz),
+/// joint-limit softness or no limits at all, contact recycling, prediction distance and the
+/// friction model were each tried and none closes the gap; where the error is remains to be
+/// found (a guess: the articulated dynamics over 10 ms).
 pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
     substeps: 5,
@@ -481,5 +487,67 @@ mod tests {
             .map(|s| episode(&mut reference, s, |_, t| gait(&GAIT, t)))
             .collect();
         println!("50x1 reference: gait {gait:?} m");
+    }
+
+    /// Issue 32's convergence table for the cheetah's sine gait: `cargo test --release -p
+    /// selkd-envs halfcheetah::tests::fidelity -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn fidelity() {
+        let settings: Vec<SimParams> = [(5, 1), (2, 2), (5, 2), (10, 1)]
+            .map(|(substeps, solver_iterations)| SimParams {
+                control_dt: CONTROL_DT,
+                substeps,
+                solver_iterations,
+            })
+            .to_vec();
+        crate::testing::fidelity_table(
+            "halfcheetah",
+            HalfCheetah::with_sim,
+            &settings,
+            0..2,
+            |e| e.qpos()[0],
+            |_, t| gait(&GAIT, t).to_vec(),
+        );
+    }
+
+    /// Issue 32's reward band: a uniform random policy's and a standing (zero-action) policy's
+    /// mean returns over seeds 0–9. The bands are our own measurement at [`SIM`] (random −538.5, standing 0.6),
+    /// widened by about half and 20, not a MuJoCo measurement: a physics or reward change that moves
+    /// either far (a reward paying for an exploit, standing that no longer stands) fails here.
+    #[test]
+    fn random_and_standing_returns_stay_in_band() {
+        let mut env = HalfCheetah::new();
+        let (random, standing) =
+            crate::testing::random_and_standing_returns::<_, NA>(&mut env, 0..10);
+        println!("halfcheetah: random {random:.1}, standing {standing:.1}");
+        assert!(
+            (-810.0..-270.0).contains(&random),
+            "random-policy mean return {random}"
+        );
+        assert!(
+            (-20.0..20.0).contains(&standing),
+            "standing mean return {standing}"
+        );
+    }
+
+    /// Issue 32, converged: the sine gait at [`SIM`] against 10× finer integration, distance
+    /// and return within 15%. FAILS today (measured: 530 m against 35 m); ignored until the
+    /// cheetah's integration error is found (issue 32; what was ruled out is in
+    /// docs/results/fidelity.md).
+    #[test]
+    #[ignore]
+    fn gait_converges_under_10x_finer_integration() {
+        let gaps = crate::testing::gaps_to_10x_finer(
+            HalfCheetah::with_sim,
+            SIM,
+            0..2,
+            |e| e.qpos()[0],
+            |_, t| gait(&GAIT, t).to_vec(),
+        );
+        assert!(
+            gaps[..2].iter().all(|g| *g < 0.15),
+            "gaps (distance, return, length) {gaps:?}"
+        );
     }
 }

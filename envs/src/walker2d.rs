@@ -53,6 +53,10 @@ const CONTROL_DT: f32 = 0.008;
 /// against the hopper's 1) are pressed against their limits by the floor: worst overshoot
 /// 1×2 0.36 rad, 1×4 0.15, 2×4 0.085, 4×2 0.070, 4×4 0.037 rad. 4×2 holds them to ~4° at about
 /// half the cost of 4×4.
+///
+/// Convergence (issue 32, `docs/results/fidelity.md`, `tests::fidelity`): the `sine_pd` gait at
+/// 4×2 against 40×2, 24 seeds: return 4% and episode length 2% apart, distance 25% (the gait
+/// falls after ~150 steps, ~0.3 m). 4×4 and 2×4 are no better (17–20% distance).
 pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
     substeps: 4,
@@ -437,5 +441,67 @@ mod tests {
                 "seed {seed}: gait {moving} m in {n} steps vs standing {still} m in {ns}"
             );
         }
+    }
+
+    /// Issue 32's convergence table for the walker's scripted gait: `cargo test --release -p
+    /// selkd-envs walker2d::tests::fidelity -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn fidelity() {
+        let settings: Vec<SimParams> = [(4, 2), (4, 4), (2, 4)]
+            .map(|(substeps, solver_iterations)| SimParams {
+                control_dt: CONTROL_DT,
+                substeps,
+                solver_iterations,
+            })
+            .to_vec();
+        crate::testing::fidelity_table(
+            "walker2d",
+            Walker2d::with_sim,
+            &settings,
+            0..24,
+            |e| e.qpos()[0],
+            |o, t| sine_pd(&GAIT, o, t).to_vec(),
+        );
+    }
+
+    /// Issue 32's reward band: a uniform random policy's and a standing (zero-action) policy's
+    /// mean returns over seeds 0–9. The bands are our own measurement at [`SIM`] (random −0.3, standing 67.1),
+    /// widened by about 30 and a half, not a MuJoCo measurement: a physics or reward change that moves
+    /// either far (a reward paying for an exploit, standing that no longer stands) fails here.
+    #[test]
+    fn random_and_standing_returns_stay_in_band() {
+        let mut env = Walker2d::new();
+        let (random, standing) =
+            crate::testing::random_and_standing_returns::<_, NA>(&mut env, 0..10);
+        println!("walker2d: random {random:.1}, standing {standing:.1}");
+        assert!(
+            (-30.0..30.0).contains(&random),
+            "random-policy mean return {random}"
+        );
+        assert!(
+            (33.0..135.0).contains(&standing),
+            "standing mean return {standing}"
+        );
+    }
+
+    /// Issue 32, converged: the scripted gait at [`SIM`] against 10× finer integration, 24
+    /// seeds, distance, return and length within 15%. FAILS today (measured: return 4%, length
+    /// 2%, but distance 25%: the gait falls after ~150 steps, 0.3 m, and where it falls is
+    /// chaotic); ignored until the walker's physics or gait is fixed (issue 32).
+    #[test]
+    #[ignore]
+    fn gait_converges_under_10x_finer_integration() {
+        let gaps = crate::testing::gaps_to_10x_finer(
+            Walker2d::with_sim,
+            SIM,
+            0..24,
+            |e| e.qpos()[0],
+            |o, t| sine_pd(&GAIT, o, t).to_vec(),
+        );
+        assert!(
+            gaps.iter().all(|g| *g < 0.15),
+            "gaps (distance, return, length) {gaps:?}"
+        );
     }
 }
