@@ -3,7 +3,7 @@
 
 /// `(key, doc)` in the order `selkd config` prints them, sections as in a config file.
 pub const KEY_DOCS: &[(&str, &str)] = &[
-    ("run.env", "env registry name: pendulum, hopper, walker2d, halfcheetah, ant, ant-contacts, humanoid, fpc-assembly (or a Gymnasium alias such as Hopper-v5)"),
+    ("run.env", "env registry name: pendulum, hopper, walker2d, halfcheetah, ant, ant-contacts, humanoid, fpc-assembly (or a Gymnasium alias such as Hopper-v5), or gymnasium:<id> for any Gymnasium env (gymnasium:Hopper-v5 is Gymnasium's own MuJoCo task)"),
     ("run.seed", "seeds the networks, the learner's sampling and every worker's env and actions"),
     ("run.total_env_steps", "budget: transitions of all actors together (K = 5 at 300000 is 60000 per actor); set from run.total_rounds when that is set"),
     ("run.total_rounds", "budget in rounds instead (Algorithm 1's time-steps: each of the K actors takes one step; env steps = rounds × K); unset or 0: run.total_env_steps is the budget; set only one"),
