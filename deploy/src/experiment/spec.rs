@@ -212,9 +212,15 @@ impl Experiment {
         let known = selkd_envs::names();
         let mut tasks = BTreeSet::new();
         for t in &self.tasks {
-            if !known.contains(&t.as_str()) {
+            if t.starts_with(selkd_gymnasium::PREFIX) {
+                // Gymnasium's registry knows its ids: make it once (with the runs' options,
+                // checked again per run when each config is validated).
+                if let Err(e) = selkd_envs::make_with(t, &selkd_envs::EnvOptions::new()) {
+                    bail!("tasks: {e}");
+                }
+            } else if !known.contains(&t.as_str()) {
                 bail!(
-                    "tasks: `{t}` is not a known env; choose from: {}",
+                    "tasks: `{t}` is not a known env; choose from: {}, or gymnasium:<id>",
                     known.join(", ")
                 );
             }
@@ -555,6 +561,8 @@ mod tests {
 
     #[test]
     fn every_shipped_experiment_resolves_every_run() {
+        // As selkd's main does: experiments/evidence.toml's tasks are Gymnasium's.
+        selkd_gymnasium::register();
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../experiments");
         let mut seen = 0;
         for entry in std::fs::read_dir(&root).unwrap() {
