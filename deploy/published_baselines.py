@@ -53,8 +53,10 @@ def simba_rows(root):
         for r in csv.DictReader(open(path)):
             if r["metric"] != "avg_return":
                 continue
-            task = r["env_name"].removesuffix("-v4")
-            if task not in TASKS or r["env_name"] == task:
+            # SimbaV2's own curves spell the id Hopper_v4, the others Hopper-v4.
+            env = r["env_name"].replace("_v4", "-v4")
+            task = env.removesuffix("-v4")
+            if task not in TASKS or env == task:
                 continue
             curves.setdefault((task, float(r["env_step"])), []).append(float(r["value"]))
         for task in TASKS:
