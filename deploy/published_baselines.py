@@ -13,7 +13,8 @@ source named on every row):
 
 For each (source, method, task) and each budget B in BUDGETS, the row holds the evaluation nearest
 to B (its env step is written, so a reader sees SimbaV2's 99 996 for 100k), over all seeds: the
-number of seeds, mean, sample std, min and max of the return.
+number of seeds, mean, sample std, min and max of the return. A budget with no evaluation
+within 20% of it has no row.
 """
 
 import csv
@@ -41,7 +42,10 @@ def summary(values):
 
 
 def nearest(steps, budget):
-    return min(steps, key=lambda s: (abs(s - budget), s))
+    """The evaluation nearest the budget, or None if none is within 20% of it (SimbaV2's own
+    curves are evaluated every 50k: its 50k is not a 30k result)."""
+    s = min(steps, key=lambda s: (abs(s - budget), s))
+    return s if abs(s - budget) <= 0.2 * budget else None
 
 
 def simba_rows(root):
@@ -62,10 +66,9 @@ def simba_rows(root):
         for task in TASKS:
             steps = sorted(s for t, s in curves if t == task)
             for b in BUDGETS:
-                if not steps:
-                    continue
-                s = nearest(steps, b)
-                yield ("SimbaV2 repo results/baseline/" + name, method, task, b, int(s), *summary(curves[(task, s)]))
+                s = nearest(steps, b) if steps else None
+                if s is not None:
+                    yield ("SimbaV2 repo results/baseline/" + name, method, task, b, int(s), *summary(curves[(task, s)]))
 
 
 def mrq_rows(path):
@@ -83,8 +86,8 @@ def mrq_rows(path):
     for task in TASKS:
         steps = sorted(table.get(task, {}))
         for b in BUDGETS:
-            if steps:
-                s = nearest(steps, b)
+            s = nearest(steps, b) if steps else None
+            if s is not None:
                 yield ("MRQ repo results/gym_results.txt", "MR.Q", task, b, int(s), *summary(table[task][s]))
 
 
