@@ -168,6 +168,10 @@ pub struct AlgoConfig {
     pub subset: usize,
     /// G: critic updates per round (per K transitions).
     pub utd: usize,
+    /// U: updates of every actor (and its temperature) per round. Algorithm 1 has 1, after the
+    /// G critic updates; U > 1 is a departure from it (the ablation that gives SELKD's actors
+    /// REDQ's update count): an actor update follows each of the last U critic updates.
+    pub actor_updates_per_round: usize,
     pub batch_size: usize,
     pub hidden: Vec<usize>,
     pub lr: f64,
@@ -312,6 +316,7 @@ impl Default for AlgoConfig {
             critics: 10,
             subset: 2,
             utd: 20,
+            actor_updates_per_round: 1,
             batch_size: 256,
             hidden: vec![256, 256],
             lr: 3e-4,
@@ -465,6 +470,13 @@ impl Config {
             return bad(
                 "algo.utd, algo.batch_size and algo.replay_capacity must be at least 1".into(),
             );
+        }
+        if a.actor_updates_per_round == 0 || a.actor_updates_per_round > a.utd {
+            return bad(format!(
+                "algo.actor_updates_per_round = {} must be between 1 and algo.utd (G = {}): \
+                 an actor update follows a critic update",
+                a.actor_updates_per_round, a.utd
+            ));
         }
         if a.hidden.is_empty()
             || a.hidden.contains(&0)
@@ -898,6 +910,10 @@ mod tests {
     fn bad_values_get_one_line_errors_naming_the_key() {
         assert!(err("", &["algo.subset=11"]).contains("algo.subset"));
         assert!(err("", &["algo.actors=0"]).contains("algo.actors"));
+        for u in ["0", "21"] {
+            assert!(err("", &[&format!("algo.actor_updates_per_round={u}")])
+                .contains("must be between 1 and algo.utd (G = 20)"));
+        }
         assert!(err("", &["run.env=walker"]).contains("pendulum"));
         assert!(err("", &["algo.batch_size=-3"]).contains("batch_size"));
         assert!(err("[algo]\ncritcs = 3\n", &[]).contains("critcs"));

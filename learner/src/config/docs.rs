@@ -24,6 +24,7 @@ pub const KEY_DOCS: &[(&str, &str)] = &[
     ("algo.critics", "N, the number of critics"),
     ("algo.subset", "M, the size of the random critic subset in the target"),
     ("algo.utd", "G, critic updates per round (per K transitions)"),
+    ("algo.actor_updates_per_round", "U: updates of every actor and temperature per round; 1 is Algorithm 1, U > 1 (at most G) a departure: an actor update after each of the last U critic updates"),
     ("algo.batch_size", "mini-batch size of every update"),
     ("algo.hidden", "hidden layer sizes of every actor and critic MLP"),
     ("algo.lr", "Adam learning rate of actors and critics"),
