@@ -157,6 +157,8 @@ fn a_stopped_experiment_run_again_skips_finished_runs_and_resumes_the_stopped_on
         String::from_utf8_lossy(&out.stderr)
     );
     common::report_check::check_report(&dir, "pendulum", &["a", "b"], &[1, 2], 2, 1500.0);
+    let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert!(!md.contains("Partial"), "every run finished: {md}");
     let _ = std::fs::remove_dir_all(&root);
 }
 
@@ -438,6 +440,22 @@ fn a_failed_run_is_reported_with_its_log_and_the_others_go_on() {
         final_inserted(&other).is_some_and(|n| n >= 1000),
         "the other run did not go on: {stderr}\n{}",
         log(&other, "selkd.log")
+    );
+    // Its report says which run is missing, so its table reads as partial.
+    let out = run({
+        let mut c = experiment(&["report"]);
+        c.arg(&dir).args(["--episodes", "1"]);
+        c
+    });
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert!(
+        md.contains("**Partial: 1 of the experiment's 2 runs are finished.** Not yet in these tables and curves: `a/pendulum/seed-1`."),
+        "{md}"
     );
     let _ = std::fs::remove_dir_all(&root);
 }

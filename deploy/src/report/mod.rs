@@ -23,7 +23,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use figure::{colour, BarChart, LineChart, Series};
 use runs::{check_same_config, Metric, Run, XAxis};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use table::Row;
@@ -121,6 +121,51 @@ fn figure_groups(dir: &Path) -> Result<Vec<FigureGroup>> {
             Ok(FigureGroup { title, methods, x })
         })
         .collect()
+}
+
+/// The runs `experiment.toml` names (`<method>/<task>/seed-<s>`), when the directory has one: the
+/// report says which of them are not (yet) finished, so a partial table reads as partial.
+fn expected_runs(dir: &Path) -> Result<Option<Vec<String>>> {
+    let path = dir.join("experiment.toml");
+    if !path.exists() {
+        return Ok(None);
+    }
+    let t: toml::Table = std::fs::read_to_string(&path)
+        .with_context(|| format!("reading {}", path.display()))?
+        .parse()
+        .with_context(|| format!("reading {}", path.display()))?;
+    let strings = |v: Option<&toml::Value>| -> Vec<String> {
+        v.and_then(|v| v.as_array())
+            .map(|a| {
+                a.iter()
+                    .filter_map(|x| {
+                        x.as_str()
+                            .map(str::to_string)
+                            .or_else(|| x.as_integer().map(|i| i.to_string()))
+                    })
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let methods: Vec<String> = t
+        .get("method")
+        .and_then(|m| m.as_array())
+        .map(|a| {
+            a.iter()
+                .filter_map(|m| m.get("name").and_then(|n| n.as_str()).map(str::to_string))
+                .collect()
+        })
+        .unwrap_or_default();
+    let (tasks, seeds) = (strings(t.get("tasks")), strings(t.get("seeds")));
+    let mut ids = Vec::new();
+    for seed in &seeds {
+        for task in &tasks {
+            for method in &methods {
+                ids.push(format!("{method}/{task}/seed-{seed}"));
+            }
+        }
+    }
+    Ok((!ids.is_empty()).then_some(ids))
 }
 
 /// Refuses a task whose runs (across methods) differ in env or env options.
@@ -501,6 +546,27 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
     std::fs::create_dir_all(&figdir).with_context(|| format!("creating {}", figdir.display()))?;
     let mut md = String::new();
     let _ = writeln!(md, "# Experiment report: `{}`\n", dir.display());
+    if let Some(expected) = expected_runs(dir)? {
+        let done: BTreeSet<String> = all
+            .iter()
+            .filter(|(_, _, r)| r.finished())
+            .map(|(m, t, r)| format!("{m}/{t}/seed-{}", r.seed))
+            .collect();
+        let missing: Vec<&String> = expected.iter().filter(|id| !done.contains(*id)).collect();
+        if !missing.is_empty() {
+            let _ = writeln!(
+                md,
+                "**Partial: {} of the experiment's {} runs are finished.** Not yet in these tables and curves: {}.\n",
+                expected.len() - missing.len(),
+                expected.len(),
+                missing
+                    .iter()
+                    .map(|id| format!("`{id}`"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+    }
     let budgets: Vec<String> = tasks
         .iter()
         .flat_map(|t| {
