@@ -15,6 +15,27 @@
 //! [`physics`] holds the rapier helpers that the locomotion robots share: world setup, planar
 //! root, hinge chains, joint torques and state, and [`physics::Robot`], a robot in its own world
 //! with its physics settings (which a run may override: [`physics::PhysicsOptions`]).
+//!
+//! One episode, as a worker plays it (`make`, `reset` with a seed, `step` until it ends):
+//!
+//! ```no_run
+//! let mut env = selkd_envs::make("pendulum")?; // or "Pendulum-v1", "hopper", "fpc-assembly", ...
+//! let spec = env.spec().clone(); // obs_dim 3, act_dim 1, max_episode_steps 200
+//! let mut obs = env.reset(Some(0)); // the same seed gives the same episode, bit for bit
+//! let mut episode_return = 0.0;
+//! loop {
+//!     let action = vec![0.5f32; spec.act_dim]; // always in [-1, 1]; the env scales it
+//!     let step = env.step(&action);
+//!     episode_return += step.reward;
+//!     // `terminated`: a real terminal state (no bootstrapping); `truncated`: the time limit.
+//!     if step.terminated || step.truncated {
+//!         break;
+//!     }
+//!     obs = step.obs;
+//! }
+//! println!("return {episode_return}, last observation {obs:?}");
+//! # Ok::<(), selkd_envs::EnvError>(())
+//! ```
 
 pub mod ant;
 pub mod fpc_assembly;
@@ -228,6 +249,21 @@ pub fn register_family(prefix: &'static str, make: ExternalConstructor) {
 
 /// Builds an env by registry name with `options` (checked: unknown keys and bad values are
 /// errors that name them).
+///
+/// ```no_run
+/// // The run config's `[env_options]` table: Pendulum on the Moon.
+/// let options: selkd_envs::EnvOptions = toml::from_str("g = 1.62")?;
+/// let mut env = selkd_envs::make_with("pendulum", &options)?;
+/// let obs = env.reset(Some(7));
+/// let step = env.step(&[-1.0]);
+/// assert_eq!(obs.len(), step.obs.len());
+/// // A learner and its workers compare this to check that they run the same variant.
+/// let _fingerprint = selkd_envs::options_fingerprint(&options);
+/// // Unknown keys are refused, naming them.
+/// let bad: selkd_envs::EnvOptions = toml::from_str("gravity = 1.62")?;
+/// assert!(selkd_envs::make_with("pendulum", &bad).is_err());
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 pub fn make_with(name: &str, options: &EnvOptions) -> Result<Box<dyn Env>, EnvError> {
     let family = FAMILIES
         .lock()

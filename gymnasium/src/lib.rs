@@ -4,7 +4,7 @@
 //!
 //! Why embedded: a worker steps its env tens of thousands of times a second at most, and a
 //! round trip to a Python child over a pipe costs about what a MuJoCo step does; in-process, a
-//! step costs one Python call more than Gymnasium's own (measured in the README).
+//! step costs one Python call more than Gymnasium's own (measured in docs/performance.md).
 //!
 //! - Spaces: `Box` observations and actions (flattened), anything else is an error naming the
 //!   space. The policy's actions in `[-1, 1]` map affinely onto the action Box's bounds, which

@@ -88,6 +88,24 @@ pub struct TransitionHeader {
 }
 
 /// Offsets into a transition row.
+///
+/// A worker writes a row, the learner splits it back into its fields:
+///
+/// ```no_run
+/// use selkd_protocol::TransitionRow;
+///
+/// let row = TransitionRow { obs_dim: 3, act_dim: 1 }; // Pendulum's sizes
+/// let mut buf = Vec::with_capacity(row.len());
+/// let (s, a, s2) = ([1.0, 0.0, 0.5], [0.25], [0.99, 0.1, 0.4]);
+/// row.write(&mut buf, &s, &a, -0.3, &s2, false, true);
+/// assert_eq!(buf.len(), row.len()); // 2·obs + act + 3
+///
+/// let (s_, a_, r, s2_, terminated, truncated) = row.split(&buf);
+/// assert_eq!((s_, a_, r, s2_), (&s[..], &a[..], -0.3, &s2[..]));
+/// // A time limit (truncated) is not a terminal state: the learner still bootstraps from s'.
+/// assert!(!terminated && truncated);
+/// assert_eq!(row.field_of(4), "r");
+/// ```
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct TransitionRow {
     pub obs_dim: usize,
@@ -428,6 +446,52 @@ mod tests {
 }
 
 /// Opening the run's services with the same settings on both sides (iceoryx2 checks they agree).
+///
+/// A worker's side of the transitions service, and the learner's, in one process for brevity
+/// (`actor-worker`'s `run` and the learner's `Learner::run` each open their half):
+///
+/// ```no_run
+/// use selkd_protocol::{services, Services, TransitionHeader, TransitionRow, TRANSITION_BUFFER};
+///
+/// # fn main() -> Result<(), services::Error> {
+/// let svc = Services::new("demo"); // the run id: both sides must use the same one
+/// let actors = 2;
+/// let row = TransitionRow { obs_dim: 3, act_dim: 1 };
+///
+/// // The learner subscribes (it also listens on `to_learner` to be woken).
+/// let learner = services::node(&selkd_protocol::learner_node_name("demo"))?;
+/// let subscriber = services::transitions(&learner, &svc, actors)?
+///     .subscriber_builder()
+///     .buffer_size(TRANSITION_BUFFER)
+///     .create()?;
+///
+/// // A worker publishes one transition and wakes the learner.
+/// let worker = services::node("actor-worker-0")?;
+/// let publisher = services::transitions(&worker, &svc, actors)?
+///     .publisher_builder()
+///     .initial_max_slice_len(row.len())
+///     .create()?;
+/// let wake = services::to_learner(&worker, &svc, actors)?.notifier_builder().create()?;
+/// let mut buf = Vec::new();
+/// row.write(&mut buf, &[1.0, 0.0, 0.5], &[0.25], -0.3, &[0.99, 0.1, 0.4], false, false);
+/// let mut sample = publisher.loan_slice_uninit(row.len())?;
+/// *sample.user_header_mut() = TransitionHeader {
+///     worker: 0,
+///     obs_dim: 3,
+///     act_dim: 1,
+///     episode_return: f64::NAN, // not the episode's last step
+///     ..Default::default()
+/// };
+/// sample.write_from_slice(&buf).send()?;
+/// wake.notify()?;
+///
+/// while let Some(t) = subscriber.receive()? {
+///     let (s, a, r, s2, terminated, _truncated) = row.split(t.payload());
+///     println!("worker {}: {s:?} {a:?} {r} {s2:?} {terminated}", t.user_header().worker);
+/// }
+/// # Ok(())
+/// # }
+/// ```
 pub mod services {
     use super::*;
     use iceoryx2::service::port_factory::{event, publish_subscribe};
