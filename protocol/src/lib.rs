@@ -561,6 +561,18 @@ pub fn learner_node_name(run_id: &str) -> String {
     format!("learner-{run_id}")
 }
 
+/// A worker's iceoryx2 node name: the learner looks for it to tell a worker that is gone (its
+/// grant can go to the others) from one that is only quiet. Cut to iceoryx2's 128 bytes.
+pub fn worker_node_name(run_id: &str, worker: usize) -> String {
+    let mut name = format!("actor-worker-{worker}-{run_id}");
+    let mut end = name.len().min(128);
+    while !name.is_char_boundary(end) {
+        end -= 1;
+    }
+    name.truncate(end);
+    name
+}
+
 /// A worker's exit code for "this worker cannot join this run" (handshake mismatch, bad
 /// arguments): restarting it would not help, so the launcher fails the run instead.
 pub const EXIT_CANNOT_JOIN: i32 = 2;

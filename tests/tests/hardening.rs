@@ -232,3 +232,110 @@ fn a_killed_learner_leaves_no_stuck_directory_and_sigterm_to_it_reads_143() {
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
+
+/// The longest wall-clock stretch (learner's `wall_s`) in progress.jsonl over which env_steps did
+/// not move, before the run reached `total`; and the last line's env_steps.
+fn longest_stall(dir: &Path, total: u64) -> (f64, u64) {
+    let lines: Vec<(f64, u64)> = log(dir, "progress.jsonl")
+        .lines()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .map(|v| {
+            (
+                v["wall_s"].as_f64().unwrap(),
+                v["env_steps"].as_u64().unwrap(),
+            )
+        })
+        .collect();
+    let mut stall = 0.0f64;
+    let mut since = lines.first().map_or(0.0, |l| l.0);
+    for w in lines.windows(2) {
+        let ((_, a), (t, b)) = (w[0], w[1]);
+        if b != a {
+            since = t;
+        } else if a < total {
+            stall = stall.max(t - since);
+        }
+    }
+    (stall, lines.last().map_or(0, |l| l.1))
+}
+
+/// Issue 30: an async run whose worker 0 is SIGKILLed again each time it is back (its restart
+/// back-off grows 0.5, 1, 2, 4, 8, 10 s) until 90 % of the budget is in: the other workers take its share, so progress never stops
+/// for long, and the run still takes exactly its env-step budget at G updates per K transitions.
+/// (Before, each worker had a fixed share of the budget: the others finished theirs and the run
+/// stood still while worker 0 waited out each back-off.)
+#[test]
+fn an_async_run_does_not_wait_for_a_worker_that_keeps_dying() {
+    let dir = temp_dir("async-kills");
+    let total = 15_000u64;
+    let mut child = spawn(train(
+        &dir,
+        &small_run(&[
+            "algo.actors=3",
+            "run.mode=async",
+            &format!("run.total_env_steps={total}"),
+            "run.checkpoint_every=0",
+        ]),
+    ));
+    let (id, stderr) = run_id(&mut child);
+    // The launcher's progress goes to stderr: keep reading it so it never blocks.
+    let reader = std::thread::spawn(move || {
+        let mut rest = String::new();
+        let mut stderr = stderr;
+        let _ = std::io::Read::read_to_string(&mut stderr, &mut rest);
+        rest
+    });
+    let deadline = Instant::now() + Duration::from_secs(240);
+    let mut kills = 0;
+    let mut seen: Option<(i32, Instant)> = None;
+    // At most 12 kills: the launcher gives up on a worker after 20 deaths in 10 minutes.
+    while env_steps_so_far(&dir) < total * 9 / 10 && kills < 12 {
+        assert!(Instant::now() < deadline, "the run made no progress");
+        match (worker_pids(&id, 0).first().copied(), seen) {
+            // Each new process of worker 0 gets 0.3 s (to join and step a little), then dies.
+            (Some(pid), Some((p, t))) if p == pid => {
+                if t.elapsed() > Duration::from_millis(300) {
+                    unsafe { libc::kill(pid, libc::SIGKILL) };
+                    kills += 1;
+                }
+            }
+            (Some(pid), _) => seen = Some((pid, Instant::now())),
+            (None, _) => {}
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let status = child.wait().unwrap();
+    let rest = reader.join().unwrap();
+    assert!(
+        status.success(),
+        "{status}: {rest}\n{}",
+        log(&dir, "learner.log")
+    );
+    // The 5th death in a row waits 4 s before its restart.
+    assert!(
+        kills >= 5,
+        "only {kills} kills: the back-off did not reach 4 s: {rest}"
+    );
+    let (stall, last) = longest_stall(&dir, total);
+    let lines = log(&dir, "progress.jsonl").lines().count();
+    eprintln!("{kills} kills; longest stall {stall:.1} s in {lines} progress lines");
+    assert!(
+        stall < 3.0,
+        "progress stood still for {stall:.1} s while worker 0 was down ({kills} kills):\n{}",
+        log(&dir, "progress.jsonl")
+    );
+    assert_eq!(last, total, "the run's env steps");
+    let state: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("checkpoints/final/state.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        state["inserted"].as_u64(),
+        Some(total),
+        "exactly the budget"
+    );
+    // G = 1 per K = 3 transitions after the warm-up (400): never more rounds than those paid for.
+    let updates = state["critic_updates"].as_u64().unwrap();
+    assert!(updates <= (total - 400) / 3 + 1, "{updates} critic updates");
+    let _ = std::fs::remove_dir_all(&dir);
+}
