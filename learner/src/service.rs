@@ -270,6 +270,7 @@ impl Learner {
     /// Runs until the budget is reached or `stop` is raised.
     pub fn run(&mut self, run_id: &str, stop: Arc<AtomicBool>) -> Result<Outcome> {
         let svc = Services::new(run_id);
+        clean_half_made_nodes();
         let node = services::node(&proto::learner_node_name(run_id))
             .map_err(|e| anyhow!("starting the iceoryx2 node: {e}"))?;
         let io = |what: &'static str| {
@@ -1198,6 +1199,22 @@ fn live_workers(run_id: &str, k: usize) -> Result<Vec<bool>> {
     })
     .map_err(|e| anyhow!("listing iceoryx2 nodes: {e:?}"))?;
     Ok(alive)
+}
+
+/// Removes node entries of processes killed while they made their node (iceoryx2 cannot), as
+/// `selkd_protocol::stale` allows; best effort, logged.
+pub fn clean_half_made_nodes() {
+    match selkd_protocol::stale::remove_half_made_nodes() {
+        Ok(r) => {
+            for p in &r.removed {
+                tracing::info!("removed the half-made iceoryx2 node entry {} (its process died while making it)", p.display());
+            }
+            for (p, why) in &r.left {
+                tracing::warn!("left the iceoryx2 node entry {}: {why}", p.display());
+            }
+        }
+        Err(e) => tracing::warn!("looking for half-made iceoryx2 node entries: {e}"),
+    }
 }
 
 fn same_control(a: &Control, b: &Control) -> bool {

@@ -24,6 +24,7 @@
 //! where the learner's record ends: nothing is sent twice, nothing is skipped.
 
 pub mod lock;
+pub mod stale;
 
 use iceoryx2::prelude::*;
 
