@@ -635,7 +635,9 @@ impl Learner {
     fn take_back_grants_of_gone_workers(&mut self, run_id: &str) {
         let quiet: Vec<usize> = (0..self.k)
             .filter(|&w| {
-                !self.benched[w]
+                // Only a worker that had joined: one still starting has no node yet.
+                self.accepting[w].is_some()
+                    && !self.benched[w]
                     && self.granted[w] > self.rollouts[w].sent
                     && self.last_heard[w].elapsed() >= QUIET
             })

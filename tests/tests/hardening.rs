@@ -347,7 +347,8 @@ fn an_async_run_does_not_wait_for_a_worker_that_keeps_dying() {
 /// readable): killed after the details; killed while making the monitor; killed while writing
 /// the details. iceoryx2 never lists or removes them. The next start removes all three, and
 /// leaves what is not provably garbage: an entry some process holds open (a node being made),
-/// another program's, and one with port tags (a complete node whose monitor was damaged).
+/// another program's, and one with port tags (a complete node whose monitor was damaged), which
+/// learner.log names.
 #[test]
 fn half_made_node_entries_are_removed_at_start_and_nothing_else() {
     use iceoryx2::prelude::{set_log_level, Config, LogLevel};
@@ -419,14 +420,9 @@ fn half_made_node_entries_are_removed_at_start_and_nothing_else() {
             kept.display()
         );
     }
+    // Which process removed them (this run's learner or workers, or another run's starting
+    // meanwhile) is not fixed; every start reports what it leaves.
     let learner = log(&dir, "learner.log");
-    assert!(
-        learner.contains(&format!(
-            "removed the half-made iceoryx2 node entry {}",
-            after_details.display()
-        )),
-        "{learner}"
-    );
     assert!(
         learner.contains(&format!(
             "left the iceoryx2 node entry {}",
