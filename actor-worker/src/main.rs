@@ -117,7 +117,23 @@ fn run(args: &Args) -> Result<()> {
     let mut env = selkd_envs::make_with(&args.env, &env_options)?;
     let spec = env.spec().clone();
     let options_fingerprint = selkd_envs::options_fingerprint(&env_options);
-    let node = services::node(&format!("actor-worker-{}", args.worker))
+    // A predecessor killed while it made its node left an entry iceoryx2 cannot clean.
+    match selkd_protocol::stale::remove_half_made_nodes() {
+        Ok(r) => {
+            for p in &r.removed {
+                tracing::info!(
+                    "removed the half-made iceoryx2 node entry {} (its process died while making it)",
+                    p.display()
+                );
+            }
+            for (p, why) in &r.left {
+                tracing::warn!("left the iceoryx2 node entry {}: {why}", p.display());
+            }
+        }
+        Err(e) => tracing::warn!("looking for half-made iceoryx2 node entries: {e}"),
+    }
+    // Named after the run: the learner looks for it to tell a gone worker from a quiet one.
+    let node = services::node(&selkd_protocol::worker_node_name(&args.run_id, args.worker))
         .map_err(|e| anyhow::anyhow!("starting iceoryx2 node: {e}"))?;
     let svc = Services::new(&args.run_id);
     let ctx = |what: &'static str| move |e: services::Error| anyhow::anyhow!("opening {what}: {e}");

@@ -72,6 +72,14 @@ pub struct Learner {
     /// Per worker: a process that said hello and waits for its cursor.
     cursor_due: Vec<Option<u64>>,
     watchdog: Watchdog,
+    /// Async: per worker, how far it may step (see `rate_limit::top_up`).
+    granted: Vec<u64>,
+    /// Per worker: when the learner last heard from its accepted process.
+    last_heard: Vec<Instant>,
+    /// Async: per worker, its grant was taken back (its process is gone); it gets no new one
+    /// until it is heard from again.
+    benched: Vec<bool>,
+    grant_turn: usize,
     inserted: u64,
     lockstep_rounds: u64,
     weights_version: u64,
@@ -205,6 +213,13 @@ impl Learner {
                 Duration::from_secs_f64(cfg.run.worker_timeout),
                 Instant::now(),
             ),
+            granted: resumed.as_ref().map_or_else(
+                || vec![0; k],
+                |s| s.rollouts().iter().map(|r| r.sent).collect(),
+            ),
+            last_heard: vec![Instant::now(); k],
+            benched: vec![false; k],
+            grant_turn: 0,
             inserted,
             lockstep_rounds: resumed.as_ref().map_or(0, |s| s.lockstep_rounds),
             weights_version: resumed.as_ref().map_or(1, |s| s.weights_version),
@@ -255,6 +270,7 @@ impl Learner {
     /// Runs until the budget is reached or `stop` is raised.
     pub fn run(&mut self, run_id: &str, stop: Arc<AtomicBool>) -> Result<Outcome> {
         let svc = Services::new(run_id);
+        clean_half_made_nodes();
         let node = services::node(&proto::learner_node_name(run_id))
             .map_err(|e| anyhow!("starting the iceoryx2 node: {e}"))?;
         let io = |what: &'static str| {
@@ -330,6 +346,7 @@ impl Learner {
         let mut finishing_since: Option<Instant> = None;
         let mut outcome = Outcome::Finished;
         let mut trained_last = false;
+        let mut last_gone_check = Instant::now();
 
         loop {
             // Wake on any worker message (or every 50 ms to keep progress, checkpoints and stop
@@ -399,6 +416,10 @@ impl Learner {
                     && (evals_in
                         || finishing_since
                             .is_some_and(|t| t.elapsed() > Duration::from_secs(120))));
+            if self.cfg.run.mode == Mode::Async && last_gone_check.elapsed() >= GONE_CHECK {
+                last_gone_check = Instant::now();
+                self.take_back_grants_of_gone_workers(run_id);
+            }
             let control = self.control(done);
             self.watch(&control);
             if last_control
@@ -483,7 +504,7 @@ impl Learner {
             );
             return;
         }
-        self.watchdog.heard(w, Instant::now());
+        self.heard(w);
         match r.kind {
             ReportKind::Hello => {
                 let spec = &self.spec;
@@ -547,7 +568,18 @@ impl Learner {
             );
             return;
         }
-        self.watchdog.heard(w, Instant::now());
+        if self.cfg.run.mode == Mode::Async && self.rollouts[w].sent >= self.granted[w] {
+            // Beyond its grant: sent by a process whose grant was taken back as it died (the
+            // run's total would be passed); its successor sends that step itself.
+            self.dropped_stale += 1;
+            tracing::warn!(
+                worker = w,
+                total = self.dropped_stale,
+                "dropped a transition of worker {w} beyond its grant; its successor sends that step itself"
+            );
+            return;
+        }
+        self.heard(w);
         let (_, action, _, _, terminated, truncated) = self.row.split(row);
         if !self.rollouts[w].record(h.episode, h.step, action, terminated || truncated) {
             tracing::error!(
@@ -585,6 +617,49 @@ impl Learner {
         match self.cfg.run.mode {
             Mode::Sync => self.pending[w].push_back(p),
             Mode::Async => self.store(p),
+        }
+    }
+
+    fn heard(&mut self, w: usize) {
+        let now = Instant::now();
+        self.watchdog.heard(w, now);
+        self.last_heard[w] = now;
+        self.benched[w] = false;
+    }
+
+    /// Async: a worker that holds an unused grant, has been quiet for `QUIET` and has no live
+    /// iceoryx2 node is gone (killed; the launcher restarts it after a back-off): its grant goes
+    /// back to the pool, so the others can finish the run without waiting for its successor.
+    /// A stopped (SIGSTOP) or busy worker's node is alive: its grant stays, and the others
+    /// still take its share of the allowance.
+    fn take_back_grants_of_gone_workers(&mut self, run_id: &str) {
+        let quiet: Vec<usize> = (0..self.k)
+            .filter(|&w| {
+                // Only a worker that had joined: one still starting has no node yet.
+                self.accepting[w].is_some()
+                    && !self.benched[w]
+                    && self.granted[w] > self.rollouts[w].sent
+                    && self.last_heard[w].elapsed() >= QUIET
+            })
+            .collect();
+        if quiet.is_empty() {
+            return;
+        }
+        let alive = match live_workers(run_id, self.k) {
+            Ok(a) => a,
+            Err(e) => {
+                tracing::warn!("{e:#}; grants of gone workers stay theirs");
+                return;
+            }
+        };
+        for w in quiet.into_iter().filter(|&w| !alive[w]) {
+            tracing::info!(
+                worker = w,
+                "worker {w} is gone with {} env steps of its grant unused; they go to the other workers",
+                self.granted[w] - self.rollouts[w].sent
+            );
+            self.granted[w] = self.rollouts[w].sent;
+            self.benched[w] = true;
         }
     }
 
@@ -692,7 +767,7 @@ impl Learner {
         Ok(())
     }
 
-    fn control(&self, stop: bool) -> Control {
+    fn control(&mut self, stop: bool) -> Control {
         let spec = &self.spec;
         let per_actor_cap = self.cfg.steps_per_actor();
         let mut budget = [0u64; MAX_ACTORS];
@@ -706,13 +781,28 @@ impl Learner {
                 budget[..self.k].iter_mut().for_each(|x| *x = b);
             }
             Mode::Async => {
+                // No per-worker cap: a share a worker cannot use (it is dead, stopped or busy)
+                // goes to the others, within the limiter's allowance and the run's total.
                 let allowance = self
                     .limiter
                     .insert_allowance(self.inserted, self.selkd.actor_updates);
-                let each = allowance.div_ceil(self.k as u64);
-                for (w, x) in budget[..self.k].iter_mut().enumerate() {
-                    *x = (self.rollouts[w].sent + each).min(per_actor_cap);
-                }
+                let sent: Vec<u64> = self.rollouts.iter().map(|r| r.sent).collect();
+                let takers: Vec<bool> = (0..self.k)
+                    .map(|w| {
+                        !self.benched[w]
+                            && (self.granted[w] <= sent[w] || self.last_heard[w].elapsed() < QUIET)
+                    })
+                    .collect();
+                crate::rate_limit::top_up(
+                    &mut self.granted,
+                    &sent,
+                    &takers,
+                    allowance,
+                    self.cfg.run.total_env_steps,
+                    self.grant_turn,
+                );
+                self.grant_turn = (self.grant_turn + 1) % self.k;
+                budget[..self.k].copy_from_slice(&self.granted);
             }
         }
         let mut hidden = [0u32; MAX_HIDDEN_LAYERS];
@@ -1087,6 +1177,48 @@ fn truncate_metrics(path: &Path, epochs: u64) -> Result<()> {
     checkpoint::write_atomically(path, &kept)
 }
 
+/// Async: a worker holding an unused grant that has sent nothing for this long is not a taker
+/// of new grants, and is looked for among the live iceoryx2 nodes (at most every `GONE_CHECK`).
+const QUIET: Duration = Duration::from_secs(1);
+const GONE_CHECK: Duration = Duration::from_millis(250);
+
+/// Per worker of this run, whether a live iceoryx2 node of its exists.
+fn live_workers(run_id: &str, k: usize) -> Result<Vec<bool>> {
+    use iceoryx2::node::{NodeState, NodeView};
+    use iceoryx2::prelude::{ipc, CallbackProgression, Config as IoxConfig, Node};
+    let names: Vec<String> = (0..k).map(|w| proto::worker_node_name(run_id, w)).collect();
+    let mut alive = vec![false; k];
+    Node::<ipc::Service>::list(IoxConfig::global_config(), |state| {
+        if let NodeState::Alive(view) = state {
+            if let Some(d) = view.details() {
+                let name = d.name().to_string();
+                if let Some(w) = names.iter().position(|n| *n == name) {
+                    alive[w] = true;
+                }
+            }
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| anyhow!("listing iceoryx2 nodes: {e:?}"))?;
+    Ok(alive)
+}
+
+/// Removes node entries of processes killed while they made their node (iceoryx2 cannot), as
+/// `selkd_protocol::stale` allows; best effort, logged.
+pub fn clean_half_made_nodes() {
+    match selkd_protocol::stale::remove_half_made_nodes() {
+        Ok(r) => {
+            for p in &r.removed {
+                tracing::info!("removed the half-made iceoryx2 node entry {} (its process died while making it)", p.display());
+            }
+            for (p, why) in &r.left {
+                tracing::warn!("left the iceoryx2 node entry {}: {why}", p.display());
+            }
+        }
+        Err(e) => tracing::warn!("looking for half-made iceoryx2 node entries: {e}"),
+    }
+}
+
 fn same_control(a: &Control, b: &Control) -> bool {
     a.weights_version == b.weights_version
         && a.eval_epoch == b.eval_epoch
@@ -1147,6 +1279,7 @@ mod tests {
         cfg.algo.actors = 2;
         let mut l = Learner::new(cfg, &dir, None).unwrap();
         l.accepting = vec![Some(7); 2];
+        l.granted = vec![u64::MAX; 2];
         (l, dir)
     }
 
@@ -1239,6 +1372,7 @@ mod tests {
         cfg.validate().unwrap();
         let mut l = Learner::new(cfg, &dir, None).unwrap();
         l.accepting = vec![Some(7)];
+        l.granted = vec![u64::MAX];
         // Transition t (1-based) carries t in its first observation entry.
         for t in 1..=40 {
             let row = [t as f32, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0];

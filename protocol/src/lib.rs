@@ -24,6 +24,7 @@
 //! where the learner's record ends: nothing is sent twice, nothing is skipped.
 
 pub mod lock;
+pub mod stale;
 
 use iceoryx2::prelude::*;
 
@@ -623,6 +624,18 @@ pub fn wait_for_wake(
 /// The learner's iceoryx2 node name; workers watch for it to notice a learner that is gone.
 pub fn learner_node_name(run_id: &str) -> String {
     format!("learner-{run_id}")
+}
+
+/// A worker's iceoryx2 node name: the learner looks for it to tell a worker that is gone (its
+/// grant can go to the others) from one that is only quiet. Cut to iceoryx2's 128 bytes.
+pub fn worker_node_name(run_id: &str, worker: usize) -> String {
+    let mut name = format!("actor-worker-{worker}-{run_id}");
+    let mut end = name.len().min(128);
+    while !name.is_char_boundary(end) {
+        end -= 1;
+    }
+    name.truncate(end);
+    name
 }
 
 /// A worker's exit code for "this worker cannot join this run" (handshake mismatch, bad
