@@ -74,6 +74,14 @@ pub struct EnvSpec {
     pub gymnasium_action_scale: f32,
 }
 
+/// An RGB picture, row by row from the top, 3 bytes a pixel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Picture {
+    pub width: usize,
+    pub height: usize,
+    pub rgb: Vec<u8>,
+}
+
 /// The result of one `step`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Step {
@@ -116,6 +124,12 @@ pub trait Env: Send {
     }
     /// Seconds of simulated time per `step` (frame timing of a rendered episode).
     fn control_dt(&self) -> Option<f64> {
+        None
+    }
+    /// A picture the env draws itself, for an env with no [`Env::scene`] (a Gymnasium env made
+    /// with `render_mode="rgb_array"`): `None` if it cannot draw, else the picture or why
+    /// drawing failed.
+    fn picture(&self) -> Option<Result<Picture, String>> {
         None
     }
     /// Why the env cannot go on, once it has failed (an exception inside a Gymnasium env's

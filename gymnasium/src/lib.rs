@@ -23,7 +23,7 @@
 
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyTuple};
-use selkd_envs::{Env, EnvError, EnvOptions, EnvSpec, Step};
+use selkd_envs::{Env, EnvError, EnvOptions, EnvSpec, Picture, Step};
 use std::ffi::CString;
 use std::path::PathBuf;
 use std::sync::Mutex;
@@ -55,6 +55,15 @@ def step(env, action, dtype, shape):
     a = _np.frombuffer(action, dtype=_np.float64).astype(dtype).reshape(shape)
     o, r, terminated, truncated, _ = env.step(a)
     return _flat(o), float(r), bool(terminated), bool(truncated)
+
+def frame(env):
+    f = env.render()
+    if f is None:
+        return None
+    a = _np.asarray(f)
+    if a.dtype != _np.uint8 or a.ndim != 3 or a.shape[2] not in (3, 4):
+        raise ValueError(f"render() gave a {a.dtype} array of shape {a.shape}, not uint8 (height, width, 3)")
+    return a.shape[1], a.shape[0], _np.ascontiguousarray(a[:, :, :3]).tobytes()
 
 def box(space):
     from gymnasium.spaces import Box
@@ -134,6 +143,15 @@ fn glue(py: Python<'_>) -> PyResult<Py<PyModule>> {
         .map(|m| m.clone_ref(py))
 }
 
+/// Gymnasium's "run `pip install …`", with where: the extra must go into our venv.
+fn into_venv(message: String) -> String {
+    if !message.contains("pip install") {
+        return message;
+    }
+    let v = venv();
+    format!("{message} (into {}: {}/bin/pip)", v.display(), v.display())
+}
+
 fn options_error(name: &str, message: String) -> EnvError {
     EnvError::Options {
         env: name.to_string(),
@@ -143,6 +161,10 @@ fn options_error(name: &str, message: String) -> EnvError {
 
 /// `gymnasium.make(id, **options)`, checked: Box spaces with finite action bounds, a time limit.
 pub fn make(name: &str, options: &EnvOptions) -> Result<Box<dyn Env>, EnvError> {
+    make_gym(name, options).map(|e| Box::new(e) as Box<dyn Env>)
+}
+
+fn make_gym(name: &str, options: &EnvOptions) -> Result<GymEnv, EnvError> {
     let id = name.strip_prefix(PREFIX).unwrap_or(name);
     let mut kwargs = options.clone();
     let imports: Vec<String> = match kwargs.remove(IMPORT_KEY) {
@@ -166,7 +188,7 @@ pub fn make(name: &str, options: &EnvOptions) -> Result<Box<dyn Env>, EnvError> 
     };
     let kwargs_json = serde_json::to_string(&kwargs)
         .map_err(|e| options_error(name, format!("options as make() keywords: {e}")))?;
-    Python::attach(|py| -> Result<Box<dyn Env>, EnvError> {
+    Python::attach(|py| -> Result<GymEnv, EnvError> {
         let py_err = |e: PyErr| options_error(name, one_line(py, &e));
         let glue = glue(py).map_err(py_err)?;
         let gym = py.import("gymnasium").map_err(|e| {
@@ -197,18 +219,9 @@ pub fn make(name: &str, options: &EnvOptions) -> Result<Box<dyn Env>, EnvError> 
             .and_then(|j| j.call_method1("loads", (kwargs_json.as_str(),)))
             .and_then(|d| d.cast_into::<PyDict>().map_err(Into::into))
             .map_err(py_err)?;
-        let env = gym.call_method("make", (id,), Some(&kw)).map_err(|e| {
-            let mut m = one_line(py, &e);
-            // Gymnasium names the extra to install; it must go into our venv.
-            if m.contains("pip install") {
-                m = format!(
-                    "{m} (into {}: {}/bin/pip)",
-                    venv().display(),
-                    venv().display()
-                );
-            }
-            options_error(name, m)
-        })?;
+        let env = gym
+            .call_method("make", (id,), Some(&kw))
+            .map_err(|e| options_error(name, into_venv(one_line(py, &e))))?;
         let space = |attr: &str| -> Result<(Vec<f64>, Vec<f64>, Vec<usize>, String), EnvError> {
             let s = env.getattr(attr).map_err(py_err)?;
             let b = glue.bind(py).call_method1("box", (&s,)).map_err(py_err)?;
@@ -257,7 +270,13 @@ pub fn make(name: &str, options: &EnvOptions) -> Result<Box<dyn Env>, EnvError> 
                 1.0
             },
         };
-        Ok(Box::new(GymEnv {
+        // Simulated seconds per step (MuJoCo's and the classic envs' `dt`), for frame timing.
+        let dt: Option<f64> = env
+            .getattr("unwrapped")
+            .and_then(|u| u.getattr("dt"))
+            .and_then(|d| d.extract())
+            .ok();
+        Ok(GymEnv {
             env: env.unbind(),
             glue,
             spec,
@@ -265,9 +284,107 @@ pub fn make(name: &str, options: &EnvOptions) -> Result<Box<dyn Env>, EnvError> 
             high,
             act_shape,
             act_dtype,
+            dt,
+            drawing: false,
             failure: None,
-        }))
+        })
     })
+}
+
+/// `gymnasium:<id>` made to draw itself for `selkd render`: `render_mode="rgb_array"`, with
+/// `width` and `height` where the env takes them (MuJoCo's do; others draw at their own size),
+/// unless `options` set them. Without a display, MuJoCo is pointed at EGL (`MUJOCO_GL=egl`,
+/// unless set), as its default, GLFW, needs one.
+pub fn make_drawing(
+    name: &str,
+    options: &EnvOptions,
+    width: usize,
+    height: usize,
+) -> Result<Box<dyn Env>, EnvError> {
+    let headless = ["DISPLAY", "WAYLAND_DISPLAY"]
+        .iter()
+        .all(|v| std::env::var_os(v).is_none_or(|d| d.is_empty()));
+    Python::attach(|py| -> PyResult<()> {
+        if headless {
+            py.import("os")?
+                .getattr("environ")?
+                .call_method1("setdefault", ("MUJOCO_GL", "egl"))?;
+        }
+        Ok(())
+    })
+    .map_err(|e| options_error(name, Python::attach(|py| one_line(py, &e))))?;
+    let mut drawn = options.clone();
+    drawn.insert("render_mode".into(), "rgb_array".into());
+    let mut sized = drawn.clone();
+    for (key, value) in [("width", width), ("height", height)] {
+        sized
+            .entry(key)
+            .or_insert(toml::Value::Integer(value as i64));
+    }
+    let made = match make_gym(name, &sized) {
+        Err(EnvError::Options { message, .. })
+            if sized != drawn
+                && !options.contains_key("width")
+                && !options.contains_key("height")
+                && (message.contains("keyword argument 'width'")
+                    || message.contains("keyword argument 'height'")) =>
+        {
+            make_gym(name, &drawn)
+        }
+        other => other,
+    };
+    let mut env = made.map_err(|e| match e {
+        EnvError::Options { message, .. } if message.contains("keyword argument 'render_mode'") => {
+            EnvError::Failed(format!(
+                "{name} cannot be drawn: its constructor takes no render_mode (selkd render needs render_mode=\"rgb_array\")"
+            ))
+        }
+        e => e,
+    })?;
+    let (mode, modes): (Option<String>, Vec<String>) = Python::attach(|py| {
+        let e = env.env.bind(py);
+        let mode = e
+            .getattr("render_mode")
+            .and_then(|m| m.extract())
+            .ok()
+            .flatten();
+        let modes = e
+            .getattr("metadata")
+            .and_then(|m| m.get_item("render_modes"))
+            .and_then(|m| m.extract())
+            .unwrap_or_default();
+        (mode, modes)
+    });
+    if mode.as_deref() != Some("rgb_array") || !modes.iter().any(|m| m == "rgb_array") {
+        return Err(EnvError::Failed(format!(
+            "{name} cannot be drawn: its render modes are {modes:?}, without rgb_array (selkd render needs render_mode=\"rgb_array\")"
+        )));
+    }
+    env.drawing = true;
+    Ok(Box::new(env))
+}
+
+/// A failed `render()`, with what to install when the cause is OpenGL (MuJoCo draws with it, and
+/// a machine without a display needs EGL or OSMesa).
+fn render_error(id: &str, e: String) -> String {
+    let lower = e.to_lowercase();
+    let gl = [
+        "opengl",
+        "egl",
+        "glfw",
+        "osmesa",
+        "glgeterror",
+        "mjr_makecontext",
+    ]
+    .iter()
+    .any(|w| lower.contains(w));
+    if !gl {
+        return format!("{id}: render() raised {}", into_venv(e));
+    }
+    let now = std::env::var("MUJOCO_GL").unwrap_or_else(|_| "unset".into());
+    format!(
+        "{id}: render() found no working OpenGL (MUJOCO_GL={now}; {e}): without a display, install EGL (apt-get install libegl1, with Mesa or a GPU driver) and set MUJOCO_GL=egl, or OSMesa (apt-get install libosmesa6) and set MUJOCO_GL=osmesa"
+    )
 }
 
 /// One `gymnasium.make` env.
@@ -279,6 +396,9 @@ pub struct GymEnv {
     high: Vec<f64>,
     act_shape: Vec<usize>,
     act_dtype: String,
+    dt: Option<f64>,
+    /// Made by [`make_drawing`], with `render_mode="rgb_array"`.
+    drawing: bool,
     failure: Option<String>,
 }
 
@@ -379,6 +499,41 @@ impl Env for GymEnv {
     fn failure(&self) -> Option<String> {
         self.failure.clone()
     }
+
+    fn control_dt(&self) -> Option<f64> {
+        self.dt
+    }
+
+    fn picture(&self) -> Option<Result<Picture, String>> {
+        if !self.drawing {
+            return None;
+        }
+        let got = Python::attach(|py| -> Result<Option<Picture>, String> {
+            let out = self
+                .glue
+                .bind(py)
+                .call_method1("frame", (self.env.bind(py),))
+                .map_err(|e| one_line(py, &e))?;
+            if out.is_none() {
+                return Ok(None);
+            }
+            let (width, height, rgb): (usize, usize, Bound<'_, PyBytes>) =
+                out.extract().map_err(|e: PyErr| one_line(py, &e))?;
+            Ok(Some(Picture {
+                width,
+                height,
+                rgb: rgb.as_bytes().to_vec(),
+            }))
+        });
+        match got {
+            Ok(Some(p)) => Some(Ok(p)),
+            Ok(None) => Some(Err(format!(
+                "{}: render() gave None, not a picture (render_mode=\"rgb_array\")",
+                self.spec.id
+            ))),
+            Err(e) => Some(Err(render_error(self.spec.id, e))),
+        }
+    }
 }
 
 impl Drop for GymEnv {
@@ -395,6 +550,15 @@ mod tests {
 
     /// Makes `gymnasium:<id>` with the test module `tests/python/selkd_test_gym.py` importable.
     fn test_env(id: &str, options: &str) -> Result<Box<dyn Env>, EnvError> {
+        test_env_drawn(id, options, None)
+    }
+
+    /// As [`test_env`], made to draw at `size` when one is given.
+    fn test_env_drawn(
+        id: &str,
+        options: &str,
+        size: Option<(usize, usize)>,
+    ) -> Result<Box<dyn Env>, EnvError> {
         let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/python");
         Python::attach(|py| {
             let path = py.import("sys").unwrap().getattr("path").unwrap();
@@ -407,7 +571,37 @@ mod tests {
             IMPORT_KEY.into(),
             toml::Value::Array(vec!["selkd_test_gym".into()]),
         );
-        make(&format!("{PREFIX}{id}"), &o)
+        let name = format!("{PREFIX}{id}");
+        match size {
+            Some((w, h)) => make_drawing(&name, &o, w, h),
+            None => make(&name, &o),
+        }
+    }
+
+    #[test]
+    fn an_env_made_to_draw_gives_its_pictures_at_the_size_asked_where_it_takes_one() {
+        let mut env = test_env_drawn("SelkdEcho-v0", "", Some((40, 30))).unwrap();
+        env.reset(Some(0));
+        env.step(&[0.0, 1.0]);
+        let p = env.picture().expect("it draws").unwrap();
+        assert_eq!((p.width, p.height, p.rgb.len()), (40, 30, 40 * 30 * 3));
+        // Red is the action's second value (1 after the map onto [0, 1]); green 10 a step.
+        assert_eq!(&p.rgb[..3], &[255, 10, 0]);
+        // An env that takes no width or height draws at its own size.
+        let mut env = test_env_drawn("SelkdSquare-v0", "", Some((40, 30))).unwrap();
+        env.reset(Some(0));
+        let p = env.picture().unwrap().unwrap();
+        assert_eq!((p.width, p.height), (8, 8));
+        // Made to train, an env does not draw; one without rgb_array cannot be made to.
+        assert!(test_env("SelkdEcho-v0", "").unwrap().picture().is_none());
+        let e = test_env_drawn("SelkdBlind-v0", "", Some((40, 30)))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains(r#"cannot be drawn: its render modes are ["human"], without rgb_array"#),
+            "{e}"
+        );
     }
 
     #[test]

@@ -1,7 +1,9 @@
 //! End to end on Gymnasium's own envs (`run.env = "gymnasium:<id>"`, stepped in each worker's
 //! embedded Python): SAC (5 000 env steps) and the quick SELKD config (K = 3) learn Pendulum-v1; a sync Hopper-v5 run whose worker and then
 //! learner are SIGKILLed ends bit-identical to its twin; an exception inside the env's `step`
-//! stops the run with the env's message instead of restarting the worker again and again.
+//! stops the run with the env's message instead of restarting the worker again and again;
+//! `selkd eval`, the report's fresh-episode scoring, `export` and `render` accept a Gymnasium run,
+//! and `render` draws Hopper-v5 through MuJoCo without a display.
 
 mod common;
 use common::*;
@@ -200,5 +202,217 @@ fn an_exception_in_step_stops_the_run_with_its_message_and_nan_observations_end_
             "{env}: {err}"
         );
     }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `selkd` with the test envs of gymnasium/tests/python importable.
+fn selkd_with_test_envs(args: &[&str]) -> std::process::Output {
+    let mut c = std::process::Command::new(bin("selkd"));
+    c.args(args).env(
+        "PYTHONPATH",
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gymnasium/tests/python"),
+    );
+    run(c)
+}
+
+/// Every command that steps a run's env after training, on a `gymnasium:` run: `selkd eval`, the
+/// experiment report's fresh-episode scoring (the same seeds, so the same returns), `selkd
+/// export`'s metadata, and `selkd render`, which draws the env's own `rgb_array` pictures.
+#[test]
+fn eval_report_export_and_render_accept_a_gymnasium_run() {
+    let dir = temp_dir("gym-after");
+    let run_dir = dir.join("sac/gymnasium:SelkdEcho-v0/seed-1");
+    let out = train_test_env(&run_dir, "SelkdEcho-v0", &["eval.epoch_env_steps=500"]);
+    assert_success(&out, &run_dir);
+    let run_arg = run_dir.to_str().unwrap();
+    let ok = |out: std::process::Output, what: &str| -> std::process::Output {
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{what}: {err}");
+        out
+    };
+
+    let out = ok(
+        selkd_with_test_envs(&["eval", run_arg, "--episodes", "3", "--json"]),
+        "eval",
+    );
+    let eval: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(eval["env"], "gymnasium:SelkdEcho-v0");
+    let returns = |v: &serde_json::Value| -> Vec<f64> {
+        v.as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r.as_f64().unwrap())
+            .collect()
+    };
+    let best = &eval["actors"][0];
+    let eval_returns = returns(&best["returns"]);
+    // 50 steps of −|a|², a in [−2, 2] × [0, 1]: never positive, never below −250.
+    assert!(
+        eval_returns.len() == 3 && eval_returns.iter().all(|r| (-250.0..=0.0).contains(r)),
+        "{eval_returns:?}"
+    );
+
+    ok(
+        selkd_with_test_envs(&[
+            "experiment",
+            "report",
+            dir.to_str().unwrap(),
+            "--episodes",
+            "3",
+        ]),
+        "experiment report",
+    );
+    let fresh: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("fresh_eval.json")).unwrap())
+            .unwrap();
+    assert_eq!(fresh["env"], "gymnasium:SelkdEcho-v0");
+    assert_eq!(fresh["actor"], best["actor"]);
+    assert_eq!(fresh["seeds"], eval["seeds"]);
+    assert_eq!(
+        returns(&fresh["returns"]),
+        eval_returns,
+        "the same episodes"
+    );
+
+    let bundle = dir.join("bundle");
+    ok(
+        selkd_with_test_envs(&["export", run_arg, "--out", bundle.to_str().unwrap()]),
+        "export",
+    );
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(bundle.join("policy.json")).unwrap())
+            .unwrap();
+    assert_eq!(meta["env"], "gymnasium:SelkdEcho-v0");
+    assert_eq!(meta["env_options"]["import"][0], "selkd_test_gym");
+    assert_eq!(
+        (meta["obs_dim"].as_u64(), meta["act_dim"].as_u64()),
+        (Some(4), Some(2))
+    );
+
+    // The run's actor on the run's env, 10 steps, every step drawn at 40 × 30 (the test env
+    // takes width and height, as MuJoCo's do): its green counts the steps, 10 a step.
+    let gif_path = dir.join("echo.gif");
+    let out = ok(
+        selkd_with_test_envs(&[
+            "render",
+            "--run",
+            run_arg,
+            "--steps",
+            "10",
+            "--size",
+            "40x30",
+            "--out",
+            gif_path.to_str().unwrap(),
+        ]),
+        "render",
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("(11 frames of 40x30)") && err.contains("actor"),
+        "{err}"
+    );
+    let mut opts = gif::DecodeOptions::new();
+    opts.set_color_output(gif::ColorOutput::RGBA);
+    let mut d = opts
+        .read_info(std::fs::File::open(&gif_path).unwrap())
+        .unwrap();
+    assert_eq!((d.width(), d.height()), (40, 30));
+    let mut t = 0;
+    while let Some(f) = d.read_next_frame().unwrap() {
+        // A flat picture; NeuQuant may move a colour by a step or two.
+        let green = f.buffer[1] as i32;
+        assert!((green - 10 * t).abs() <= 3, "frame {t}: green {green}");
+        assert!(
+            f.buffer.chunks(4).all(|p| p == &f.buffer[..4]),
+            "frame {t} is not flat"
+        );
+        t += 1;
+    }
+    assert_eq!(t, 11);
+
+    // An env without rgb_array: one line that says so.
+    let out = selkd_with_test_envs(&[
+        "render",
+        "--env",
+        "gymnasium:SelkdBlind-v0",
+        "--env-options",
+        r#"import = ["selkd_test_gym"]"#,
+        "--out",
+        gif_path.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.trim()
+            .lines()
+            .last()
+            .unwrap()
+            .contains("cannot be drawn: its render modes are"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Gymnasium's own Hopper-v5 drawn by MuJoCo without a display (EGL, which `selkd render` picks
+/// when nothing else is set); with a GL that cannot work headless, one line says what to install.
+#[test]
+fn render_draws_gymnasium_hopper_headless_or_says_what_to_install() {
+    let dir = temp_dir("gym-render");
+    let png_path = dir.join("hopper.png");
+    let mut c = std::process::Command::new(bin("selkd"));
+    c.args([
+        "render",
+        "--env",
+        "gymnasium:Hopper-v5",
+        "--steps",
+        "10",
+        "--every",
+        "5",
+    ])
+    .args(["--size", "64x48", "--strip-frames", "3", "--out"])
+    .arg(&png_path)
+    .env_remove("DISPLAY")
+    .env_remove("WAYLAND_DISPLAY")
+    .env_remove("MUJOCO_GL");
+    let out = run(c);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let d = png::Decoder::new(std::io::BufReader::new(
+        std::fs::File::open(&png_path).unwrap(),
+    ));
+    let mut r = d.read_info().unwrap();
+    let mut buf = vec![0; r.output_buffer_size().unwrap()];
+    let info = r.next_frame(&mut buf).unwrap();
+    assert_eq!((info.width, info.height), (3 * 64 + 2 * 2, 48));
+    // A picture, not a blank: many different colours in the first frame.
+    let colours: std::collections::HashSet<&[u8]> = (0..48)
+        .flat_map(|y| (0..64).map(move |x| 3 * (y * (3 * 64 + 4) + x)))
+        .map(|i| &buf[i..i + 3])
+        .collect();
+    assert!(colours.len() > 20, "{} colours", colours.len());
+
+    let mut c = std::process::Command::new(bin("selkd"));
+    c.args([
+        "render",
+        "--env",
+        "gymnasium:Hopper-v5",
+        "--steps",
+        "2",
+        "--out",
+    ])
+    .arg(&png_path)
+    .env_remove("DISPLAY")
+    .env_remove("WAYLAND_DISPLAY")
+    .env("MUJOCO_GL", "glfw");
+    let out = run(c);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    let last = err.trim().lines().last().unwrap();
+    assert!(
+        last.contains("no working OpenGL (MUJOCO_GL=glfw")
+            && last.contains("set MUJOCO_GL=egl")
+            && last.contains("MUJOCO_GL=osmesa"),
+        "{err}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
