@@ -70,7 +70,8 @@ pub struct EnvSpec {
     /// Gymnasium's own version of the task (`Pendulum-v1`, `Hopper-v5`, ...) takes
     /// `gymnasium_action_scale · a` for our action `a`: its action space is ±this (the
     /// pendulum's 2 N·m, the humanoid's 0.4 ctrl range; 1 for the other robots, and for
-    /// `fpc-assembly`, which has no counterpart).
+    /// `fpc-assembly`, which has no counterpart). A `gymnasium:<id>` env whose action Box is not
+    /// ±c in every dimension has no such scale: NaN (`selkd export` refuses it).
     pub gymnasium_action_scale: f32,
 }
 

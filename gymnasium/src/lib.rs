@@ -264,10 +264,16 @@ fn make_gym(name: &str, options: &EnvOptions) -> Result<GymEnv, EnvError> {
             obs_dim: obs_shape.iter().product(),
             act_dim: act_shape.iter().product(),
             max_episode_steps,
-            gymnasium_action_scale: if symmetric && !high.is_empty() {
+            // One number maps [-1, 1] onto the Box only when it is ±c in every dimension.
+            gymnasium_action_scale: if symmetric
+                && !high.is_empty()
+                && high
+                    .iter()
+                    .all(|h| (h - high[0]).abs() <= 1e-9 * h.abs().max(1.0))
+            {
                 high[0] as f32
             } else {
-                1.0
+                f32::NAN
             },
         };
         // Simulated seconds per step (MuJoCo's and the classic envs' `dt`), for frame timing.
@@ -612,6 +618,10 @@ mod tests {
             (s.id, s.obs_dim, s.act_dim, s.max_episode_steps),
             ("gymnasium:SelkdEcho-v0", 4, 2, 50)
         );
+        // [-2, 2] × [0, 1] is no ±c box: no single export scale; Pendulum-v1's ±2 is.
+        assert!(s.gymnasium_action_scale.is_nan());
+        let pendulum = test_env("Pendulum-v1", "").unwrap();
+        assert_eq!(pendulum.spec().gymnasium_action_scale, 2.0);
         env.reset(Some(3));
         // [-1, 1] → [-2, 2] and [0, 1]; out of range is clipped first.
         for (a, want) in [

@@ -222,7 +222,12 @@ fn selkd_with_test_envs(args: &[&str]) -> std::process::Output {
 fn eval_report_export_and_render_accept_a_gymnasium_run() {
     let dir = temp_dir("gym-after");
     let run_dir = dir.join("sac/gymnasium:SelkdEcho-v0/seed-1");
-    let out = train_test_env(&run_dir, "SelkdEcho-v0", &["eval.epoch_env_steps=500"]);
+    // A ±1.5 box (the test env's `high`): one number scales it, so `selkd export` takes it.
+    let out = train_test_env(
+        &run_dir,
+        "SelkdEcho-v0",
+        &["eval.epoch_env_steps=500", "env_options.high=1.5"],
+    );
     assert_success(&out, &run_dir);
     let run_arg = run_dir.to_str().unwrap();
     let ok = |out: std::process::Output, what: &str| -> std::process::Output {
@@ -246,9 +251,9 @@ fn eval_report_export_and_render_accept_a_gymnasium_run() {
     };
     let best = &eval["actors"][0];
     let eval_returns = returns(&best["returns"]);
-    // 50 steps of −|a|², a in [−2, 2] × [0, 1]: never positive, never below −250.
+    // 50 steps of −|a|², a in [−1.5, 1.5]²: never positive, never below −225.
     assert!(
-        eval_returns.len() == 3 && eval_returns.iter().all(|r| (-250.0..=0.0).contains(r)),
+        eval_returns.len() == 3 && eval_returns.iter().all(|r| (-225.0..=0.0).contains(r)),
         "{eval_returns:?}"
     );
 
@@ -284,6 +289,7 @@ fn eval_report_export_and_render_accept_a_gymnasium_run() {
             .unwrap();
     assert_eq!(meta["env"], "gymnasium:SelkdEcho-v0");
     assert_eq!(meta["env_options"]["import"][0], "selkd_test_gym");
+    assert_eq!(meta["gymnasium_action_scale"], 1.5);
     assert_eq!(
         (meta["obs_dim"].as_u64(), meta["act_dim"].as_u64()),
         (Some(4), Some(2))

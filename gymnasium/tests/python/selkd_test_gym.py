@@ -16,13 +16,15 @@ from gymnasium import spaces
 class Echo(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
 
-    def __init__(self, boom_at=0, nan_every=0, render_mode=None, width=24, height=16):
+    def __init__(self, boom_at=0, nan_every=0, render_mode=None, width=24, height=16, high=None):
         self.render_mode, self.width, self.height = render_mode, width, height
         self.last = 0.0
         self.observation_space = spaces.Box(-np.inf, np.inf, (2, 2), np.float64)
         self.action_space = spaces.Box(
             np.array([-2.0, 0.0], dtype=np.float32), np.array([2.0, 1.0], dtype=np.float32)
         )
+        if high is not None:  # a ±high box, which `selkd export` can scale to
+            self.action_space = spaces.Box(-high, high, (2,), np.float32)
         self.boom_at, self.nan_every, self.t = boom_at, nan_every, 0
 
     def reset(self, seed=None, options=None):
@@ -46,7 +48,7 @@ class Echo(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         picture = np.zeros((self.height, self.width, 3), dtype=np.uint8)
-        picture[:, :, 0] = round(255 * self.last)
+        picture[:, :, 0] = min(max(round(255 * self.last), 0), 255)
         picture[:, :, 1] = (10 * self.t) % 256
         return picture
 
