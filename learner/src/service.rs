@@ -12,10 +12,9 @@ use crate::rollout::{Pending, Rollout, Watchdog};
 use crate::selkd::{RoundStats, Selkd};
 use crate::tensorboard::EventWriter;
 use anyhow::{anyhow, bail, Context, Result};
-use iceoryx2::port::update_connections::UpdateConnections;
 use selkd_protocol::{
-    self as proto, services, Control, Name, ReportKind, Services, TransitionHeader, TransitionRow,
-    MAX_ACTORS, MAX_HIDDEN_LAYERS, PROTOCOL_VERSION,
+    self as proto, services, Control, Handshake, LearnerPorts, ReportKind, Services,
+    TransitionHeader, TransitionRow, MAX_ACTORS, MAX_HIDDEN_LAYERS,
 };
 use std::collections::VecDeque;
 use std::io::Write;
@@ -240,70 +239,20 @@ impl Learner {
 
     /// Runs until the budget is reached or `stop` is raised.
     pub fn run(&mut self, run_id: &str, stop: Arc<AtomicBool>) -> Result<Outcome> {
-        let svc = Services::new(run_id);
         let node = services::node(&proto::learner_node_name(run_id))
             .map_err(|e| anyhow!("starting the iceoryx2 node: {e}"))?;
-        let io = |what: &'static str| {
-            move |e: services::Error| anyhow!("opening the {what} service: {e}")
-        };
         let k = self.k;
-        let transitions = services::transitions(&node, &svc, k)
-            .map_err(io("transitions"))?
-            .subscriber_builder()
-            .buffer_size(proto::TRANSITION_BUFFER)
-            .create()?;
-        let reports = services::reports(&node, &svc, k)
-            .map_err(io("reports"))?
-            .subscriber_builder()
-            .create()?;
-        let wake = services::to_learner(&node, &svc, k)
-            .map_err(io("to-learner"))?
-            .listener_builder()
-            .create()?;
-        let notify_workers = services::to_workers(&node, &svc)
-            .map_err(io("to-workers"))?
-            .notifier_builder()
-            .create()?;
-        let control_pub = services::control(&node, &svc)
-            .map_err(io("control"))?
-            .publisher_builder()
-            .create()?;
-        let ranking_pub = services::ranking(&node, &svc)
-            .map_err(io("ranking"))?
-            .publisher_builder()
-            .create()?;
-        let n_params = self.selkd.actor_weights(0).len();
-        let weight_pubs = (0..k)
-            .map(|i| {
-                Ok(services::weights(&node, &svc, i)
-                    .map_err(io("weights"))?
-                    .publisher_builder()
-                    .initial_max_slice_len(n_params)
-                    .create()?)
-            })
-            .collect::<Result<Vec<_>>>()?;
-
-        let cursor_pubs = (0..k)
-            .map(|i| {
-                Ok(services::cursor(&node, &svc, i)
-                    .map_err(io("cursor"))?
-                    .publisher_builder()
-                    .initial_max_slice_len(4096)
-                    .allocation_strategy(iceoryx2::prelude::AllocationStrategy::PowerOfTwo)
-                    .create()?)
-            })
-            .collect::<Result<Vec<_>>>()?;
-
-        let publish_weights = |s: &Selkd, version: u64| -> Result<()> {
-            for (i, p) in weight_pubs.iter().enumerate() {
-                let mut sample = p.loan_slice_uninit(n_params)?;
-                *sample.user_header_mut() = proto::WeightsHeader {
-                    actor: i as u32,
-                    version,
-                };
-                sample.write_from_slice(&s.actor_weights(i)).send()?;
-            }
-            Ok(())
+        let ports = LearnerPorts::open(
+            &node,
+            &Services::new(run_id),
+            k,
+            self.selkd.actor_weights(0).len(),
+        )
+        .map_err(|e| anyhow!("{e}"))?;
+        let publish_weights = |s: &Selkd, version: u64| {
+            ports
+                .publish_weights(version, |i| s.actor_weights(i))
+                .map_err(|e| anyhow!("publishing weights: {e}"))
         };
         publish_weights(&self.selkd, self.weights_version)?;
         let mut last_control = None;
@@ -322,12 +271,12 @@ impl Learner {
             // handling responsive).
             // A pass that trained does not wait: more rounds may be due.
             if !trained_last {
-                selkd_protocol::wait_for_wake(&wake, Duration::from_millis(50))?;
+                selkd_protocol::wait_for_wake(&ports.wake, Duration::from_millis(50))?;
             }
-            while let Some(r) = reports.receive()? {
+            while let Some(r) = ports.reports.receive()? {
                 self.on_report(r.payload());
             }
-            while let Some(t) = transitions.receive()? {
+            while let Some(t) = ports.transitions.receive()? {
                 self.on_transition(*t.user_header(), t.payload());
             }
             // A worker that said hello gets its cursor once every transition of its predecessor
@@ -335,19 +284,17 @@ impl Learner {
             for w in 0..k {
                 if let Some(incarnation) = self.cursor_due[w].take() {
                     let r = &self.rollouts[w];
-                    let p = &cursor_pubs[w];
-                    p.update_connections()?;
-                    let mut sample = p.loan_slice_uninit(r.actions.len())?;
-                    *sample.user_header_mut() = proto::CursorHeader {
+                    let cursor = proto::CursorHeader {
                         worker: w as u32,
                         incarnation,
                         sent: r.sent,
                         episode: r.episode,
                         step: r.step,
                     };
-                    sample.write_from_slice(&r.actions).send()?;
+                    ports
+                        .send_cursor(cursor, &r.actions)
+                        .map_err(|e| anyhow!("sending worker {w}'s cursor: {e}"))?;
                     self.accepting[w] = Some(incarnation);
-                    notify_workers.notify()?;
                 }
             }
             let trained = match self.cfg.run.mode {
@@ -392,23 +339,21 @@ impl Learner {
                 .map(|c: &Control| !same_control(c, &control))
                 .unwrap_or(true)
             {
-                control_pub.send_copy(control)?;
-                notify_workers.notify()?;
+                ports.control.send_copy(control)?;
+                ports.to_workers.notify()?;
                 last_control = Some(control);
             }
             // Late (or restarted) subscribers get the latest control, ranking and weights from the
             // publishers' history only once the publisher looks for new connections.
             if last_connect.elapsed() >= Duration::from_millis(50) {
                 last_connect = Instant::now();
-                control_pub.update_connections()?;
-                ranking_pub.update_connections()?;
-                for p in &weight_pubs {
-                    p.update_connections()?;
-                }
+                ports
+                    .connect_latecomers()
+                    .map_err(|e| anyhow!("connecting late workers: {e}"))?;
             }
             if self.ranking.version != ranking_version {
                 ranking_version = self.ranking.version;
-                ranking_pub.send_copy(self.ranking_message())?;
+                ports.ranking.send_copy(self.ranking_message())?;
             }
             if last_progress.elapsed() >= Duration::from_secs(1) || done {
                 let dt = window.0.elapsed().as_secs_f64();
@@ -472,17 +417,8 @@ impl Learner {
         self.watchdog.heard(w, Instant::now());
         match r.kind {
             ReportKind::Hello => {
-                let spec = &self.spec;
-                if r.protocol_version != PROTOCOL_VERSION
-                    || r.env.as_str() != spec.id
-                    || r.env_options != self.cfg.env_options_fingerprint()
-                    || r.obs_dim as usize != spec.obs_dim
-                    || r.act_dim as usize != spec.act_dim
-                {
-                    tracing::error!(
-                        "worker {w} does not fit this run: it has protocol v{}, env `{}`, obs {}, act {}; the learner has protocol v{PROTOCOL_VERSION}, env `{}`, obs {}, act {}",
-                        r.protocol_version, r.env.as_str(), r.obs_dim, r.act_dim, spec.id, spec.obs_dim, spec.act_dim
-                    );
+                if let Err(e) = proto::check_peer(&self.handshake(), &r.handshake()) {
+                    tracing::error!("worker {w}: {e}");
                     return;
                 }
                 if self.accepting[w] != Some(r.incarnation) && self.cursor_due[w].is_none() {
@@ -677,8 +613,19 @@ impl Learner {
         Ok(())
     }
 
-    fn control(&self, stop: bool) -> Control {
+    /// The learner's side of the handshake, announced in every [`Control`].
+    fn handshake(&self) -> Handshake {
         let spec = &self.spec;
+        Handshake::ours(
+            spec.id,
+            self.cfg.env_options_fingerprint(),
+            spec.obs_dim,
+            spec.act_dim,
+        )
+    }
+
+    fn control(&self, stop: bool) -> Control {
+        let ours = self.handshake();
         let per_actor_cap = self.cfg.steps_per_actor();
         let mut budget = [0u64; MAX_ACTORS];
         match self.cfg.run.mode {
@@ -705,12 +652,12 @@ impl Learner {
             *h = v as u32;
         }
         Control {
-            protocol_version: PROTOCOL_VERSION,
+            protocol_version: ours.protocol_version,
             actors: self.k as u32,
-            env: Name::new(spec.id),
-            env_options: self.cfg.env_options_fingerprint(),
-            obs_dim: spec.obs_dim as u32,
-            act_dim: spec.act_dim as u32,
+            env: ours.env,
+            env_options: ours.env_options,
+            obs_dim: ours.obs_dim,
+            act_dim: ours.act_dim,
             seed: self.cfg.run.seed,
             hidden,
             hidden_layers: self.cfg.algo.hidden.len() as u32,
