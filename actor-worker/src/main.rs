@@ -10,8 +10,8 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use selkd_policy::{evaluation, Actor, ActorLayout};
 use selkd_protocol::{
-    services, Control, CursorHeader, Name, Report, ReportKind, Services, TransitionHeader,
-    TransitionRow, PROTOCOL_VERSION,
+    check_peer, services, Control, CursorHeader, Handshake, Report, ReportKind, Services,
+    TransitionHeader, TransitionRow, WorkerPorts,
 };
 use std::time::{Duration, Instant};
 
@@ -44,14 +44,7 @@ struct Args {
 fn main() {
     // `gymnasium:` envs step in an embedded Python.
     selkd_gymnasium::register();
-    // Colour only on a terminal: the launcher sends these logs to files.
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
-        .init();
+    selkd_protocol::init_tracing();
     let args = Args::parse();
     match run(&args) {
         Ok(()) => {}
@@ -136,13 +129,9 @@ fn run(args: &Args) -> Result<()> {
     let node = services::node(&selkd_protocol::worker_node_name(&args.run_id, args.worker))
         .map_err(|e| anyhow::anyhow!("starting iceoryx2 node: {e}"))?;
     let svc = Services::new(&args.run_id);
-    let ctx = |what: &'static str| move |e: services::Error| anyhow::anyhow!("opening {what}: {e}");
 
     // The learner announces the run on `control` (history 1): wait for it, then check we fit.
-    let control_sub = services::control(&node, &svc)
-        .map_err(ctx("control"))?
-        .subscriber_builder()
-        .create()?;
+    let control_sub = WorkerPorts::control(&node, &svc).map_err(|e| anyhow::anyhow!("{e}"))?;
     let deadline = Instant::now() + Duration::from_secs_f64(args.connect_timeout);
     let mut control: Control = loop {
         if let Some(s) = control_sub.receive()? {
@@ -153,13 +142,8 @@ fn run(args: &Args) -> Result<()> {
         }
         std::thread::sleep(Duration::from_millis(20));
     };
-    selkd_protocol::check_peer(
-        &control,
-        spec.id,
-        options_fingerprint,
-        spec.obs_dim,
-        spec.act_dim,
-    )?;
+    let ours = Handshake::ours(spec.id, options_fingerprint, spec.obs_dim, spec.act_dim);
+    check_peer(&control.handshake(), &ours)?;
     if args.worker >= control.actors as usize {
         let msg = format!(
             "--worker {} is out of range: the run has {} actors (0..{})",
@@ -176,31 +160,20 @@ fn run(args: &Args) -> Result<()> {
         .collect();
     let layout = ActorLayout::new(spec.obs_dim, spec.act_dim, &hidden);
 
-    let weights_sub = services::weights(&node, &svc, args.worker)
-        .map_err(ctx("weights"))?
-        .subscriber_builder()
-        .create()?;
-    let transitions_svc = services::transitions(&node, &svc, k).map_err(ctx("transitions"))?;
     let row = TransitionRow {
         obs_dim: spec.obs_dim,
         act_dim: spec.act_dim,
     };
-    let publisher = transitions_svc
-        .publisher_builder()
-        .initial_max_slice_len(row.len())
-        .create()?;
-    let reports = services::reports(&node, &svc, k)
-        .map_err(ctx("reports"))?
-        .publisher_builder()
-        .create()?;
-    let to_learner = services::to_learner(&node, &svc, k)
-        .map_err(ctx("to-learner"))?
-        .notifier_builder()
-        .create()?;
-    let wake = services::to_workers(&node, &svc)
-        .map_err(ctx("to-workers"))?
-        .listener_builder()
-        .create()?;
+    let WorkerPorts {
+        control: control_sub,
+        weights: weights_sub,
+        cursor: cursor_sub,
+        transitions: publisher,
+        reports,
+        to_learner,
+        wake,
+    } = WorkerPorts::open(&node, &svc, control_sub, args.worker, k, row.len())
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
 
     let mut actor: Option<Actor> = None;
     let mut weights_version = 0u64;
@@ -233,11 +206,11 @@ fn run(args: &Args) -> Result<()> {
         worker: args.worker as u32,
         generation: args.generation,
         incarnation,
-        protocol_version: PROTOCOL_VERSION,
-        env: Name::new(spec.id),
-        env_options: options_fingerprint,
-        obs_dim: spec.obs_dim as u32,
-        act_dim: spec.act_dim as u32,
+        protocol_version: ours.protocol_version,
+        env: ours.env,
+        env_options: ours.env_options,
+        obs_dim: ours.obs_dim,
+        act_dim: ours.act_dim,
         weights_version: version,
         epoch,
         episodes,
@@ -246,10 +219,6 @@ fn run(args: &Args) -> Result<()> {
     };
 
     // Say hello and wait for the cursor: where the learner's record of this actor's rollout ends.
-    let cursor_sub = services::cursor(&node, &svc, args.worker)
-        .map_err(ctx("cursor"))?
-        .subscriber_builder()
-        .create()?;
     let deadline = Instant::now() + Duration::from_secs_f64(args.connect_timeout);
     let mut last_hello: Option<Instant> = None;
     let (cursor, recorded_actions) = loop {
@@ -446,7 +415,7 @@ fn env_failed(env: &dyn selkd_envs::Env) -> Result<()> {
 
 /// The newest cursor the learner published for `incarnation`, with its actions.
 fn latest_cursor(
-    sub: &iceoryx2::port::subscriber::Subscriber<ipc::Service, [f32], CursorHeader>,
+    sub: &services::Subscriber<[f32], CursorHeader>,
     incarnation: u64,
 ) -> Result<Option<(CursorHeader, Vec<f32>)>> {
     let mut found = None;
@@ -461,7 +430,7 @@ fn latest_cursor(
 /// The incarnation of a cursor published for another process of this actor, if any: the learner
 /// has handed the actor to it.
 fn newer_cursor(
-    sub: &iceoryx2::port::subscriber::Subscriber<ipc::Service, [f32], CursorHeader>,
+    sub: &services::Subscriber<[f32], CursorHeader>,
     incarnation: u64,
 ) -> Result<Option<u64>> {
     let mut other = None;

@@ -36,14 +36,7 @@ fn main() {
     selkd_learner::restart_with_runtime_settings();
     // `gymnasium:` envs step in an embedded Python.
     selkd_gymnasium::register();
-    // Colour only on a terminal: the launcher sends these logs to files.
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
-        .init();
+    selkd_protocol::init_tracing();
     let args = Args::parse();
     let signal = Arc::new(AtomicUsize::new(0));
     match run(&args, &signal) {
