@@ -399,9 +399,10 @@ pub enum ProtocolError {
         "this worker does not fit the run: learner has {learner}; worker has {worker}. \
          Start the worker with the run's env and the same selkd build"
     )]
+    // Boxed: a Handshake holds a 96-byte name, and every service name's Result carries this type.
     Mismatch {
-        learner: Handshake,
-        worker: Handshake,
+        learner: Box<Handshake>,
+        worker: Box<Handshake>,
     },
     #[error(
         "this worker runs env `{}` with other options than the run (fingerprint {:x}, the run's \
@@ -409,21 +410,21 @@ pub enum ProtocolError {
         worker.env.as_str(), worker.env_options, learner.env_options
     )]
     OptionsMismatch {
-        learner: Handshake,
-        worker: Handshake,
+        learner: Box<Handshake>,
+        worker: Box<Handshake>,
     },
 }
 
 /// The handshake, on either side (a worker checks the learner's [`Control`], the learner each
 /// hello [`Report`]): does the worker fit the run? The error names both sides' values.
 pub fn check_peer(learner: &Handshake, worker: &Handshake) -> Result<(), ProtocolError> {
-    let (learner, worker) = (*learner, *worker);
-    let apart_from_options = |h: Handshake| Handshake {
+    let apart_from_options = |h: &Handshake| Handshake {
         env_options: 0,
-        ..h
+        ..*h
     };
+    let (learner, worker) = (Box::new(*learner), Box::new(*worker));
     match (
-        apart_from_options(learner) == apart_from_options(worker),
+        apart_from_options(&learner) == apart_from_options(&worker),
         learner.env_options == worker.env_options,
     ) {
         (true, true) => Ok(()),
