@@ -50,6 +50,8 @@ ours() {
     mv "$out/ours/seed-$s.csv.partial" "$out/ours/seed-$s.csv"
 }
 theirs() {
+    # xargs' bash does not inherit pipefail: without it a failed SB3 run would count as done.
+    set -o pipefail
     local s=$1 t0=$SECONDS
     "$venv/bin/python" deploy/compare/sb3_sac.py "$task" "$s" "$steps" "$every" 10 \
         2> "$out/sb3/seed-$s.log" | sed -u 's/^/sb3,/' > "$out/sb3/seed-$s.csv.partial" \
