@@ -31,8 +31,8 @@ venv=${SELKD_PYTHON_VENV:-$cache/python-venv}
 env=gymnasium:$task
 [ "$task" = Pendulum-v1 ] && env=pendulum
 mkdir -p "$out/ours" "$out/sb3"
-# Each finished run is OUT/TASK/WHO/seed-N.csv (written whole at the end) with its wall time in
-# seed-N.seconds.
+# Each finished run is OUT/TASK/WHO/seed-N.csv (renamed from seed-N.csv.partial, which fills as
+# SB3 evaluates; ours shows its progress in seed-N.log) with its wall time in seed-N.seconds.
 ours() {
     local s=$1 d="$out/ours/seed-$1" t0=$SECONDS
     rm -rf "$d"
@@ -50,9 +50,11 @@ ours() {
     mv "$out/ours/seed-$s.csv.partial" "$out/ours/seed-$s.csv"
 }
 theirs() {
+    # xargs' bash does not inherit pipefail: without it a failed SB3 run would count as done.
+    set -o pipefail
     local s=$1 t0=$SECONDS
     "$venv/bin/python" deploy/compare/sb3_sac.py "$task" "$s" "$steps" "$every" 10 \
-        2> "$out/sb3/seed-$s.log" | sed 's/^/sb3,/' > "$out/sb3/seed-$s.csv.partial" \
+        2> "$out/sb3/seed-$s.log" | sed -u 's/^/sb3,/' > "$out/sb3/seed-$s.csv.partial" \
         || { echo "sac-vs-sb3: SB3 seed $s failed; see $out/sb3/seed-$s.log" >&2; return 1; }
     echo $((SECONDS - t0)) > "$out/sb3/seed-$s.seconds"
     mv "$out/sb3/seed-$s.csv.partial" "$out/sb3/seed-$s.csv"
