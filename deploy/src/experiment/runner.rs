@@ -227,7 +227,7 @@ async fn schedule(
             _ = sigint.recv(), if stop.is_none() => stop = Some(libc::SIGINT),
             _ = sigterm.recv(), if stop.is_none() => stop = Some(libc::SIGTERM),
             Some((i, outcome)) = rx.recv() => {
-                let r = running.remove(&i).expect("a started run");
+                running.remove(&i).expect("a started run");
                 match outcome {
                     Outcome::Finished => progress.finished(),
                     Outcome::Stopped => stopped += 1,
