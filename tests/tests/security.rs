@@ -83,11 +83,22 @@ fn another_user_can_neither_redirect_a_learners_lock_nor_block_its_run_id() {
             .env("XDG_RUNTIME_DIR", &private);
         let mut learner = spawn(learner);
         let learner_pid = learner.id();
-        // A learner that could not lock its run id exits at once; give it time to.
-        std::thread::sleep(Duration::from_millis(2000));
-        let exited = learner.try_wait().unwrap();
+        // A learner that could not lock its run id exits at once. One that did writes its pid into
+        // the lock; on a busy machine its start (libtorch, Python) can take seconds, so wait for
+        // either rather than a fixed time.
         let ours = private.join("selkd").join(format!("learner-{run_id}.lock"));
-        let pid_in_lock = std::fs::read_to_string(&ours).unwrap_or_default();
+        let t0 = Instant::now();
+        let (exited, pid_in_lock) = loop {
+            std::thread::sleep(Duration::from_millis(200));
+            let exited = learner.try_wait().unwrap();
+            let pid_in_lock = std::fs::read_to_string(&ours).unwrap_or_default();
+            if exited.is_some() || !pid_in_lock.is_empty() || t0.elapsed() > Duration::from_secs(60)
+            {
+                // Still running a moment later: a learner that fails its lock exits at once.
+                std::thread::sleep(Duration::from_millis(500));
+                break (learner.try_wait().unwrap().or(exited), pid_in_lock);
+            }
+        };
         unsafe { libc::kill(learner_pid as i32, libc::SIGTERM) };
         let out = learner.wait_with_output().unwrap();
         let err = String::from_utf8_lossy(&out.stderr);
