@@ -165,7 +165,7 @@ pub fn links() -> Vec<LinkDesc> {
 
 pub struct HalfCheetah {
     spec: EnvSpec,
-    robot: Robot,
+    pub(crate) robot: Robot,
     t: usize,
     rng: Pcg64,
 }
@@ -376,27 +376,14 @@ mod tests {
         assert!(obs[0] > -0.7 && obs[1].cos() < 0.0, "{obs:?}");
     }
 
-    /// An open-loop sine gait: a_j = sin(2π f t + φ_j) (amplitude 1), found by a short search
-    /// run once on this env (60 random samples then hill-climbing on the forward progress of
-    /// seeds 100–101, 200 s); [f Hz, then φ_j for bthigh … ffoot]. It runs ~530 m in 1000 steps
-    /// here, and only 25–44 m under 1 ms physics steps (see [`SIM`]); the same gait goes ~90 m
-    /// *backward* in Gymnasium's MuJoCo HalfCheetah-v5, and the same search run on MuJoCo found
-    /// at best 67 m: open-loop gaits exploit the engine.
-    const GAIT: [f32; 7] = [
-        4.22699, -2.7452831, 1.0884578, -1.0541096, 0.44694817, -2.9582198, 1.9110123,
-    ];
-
-    fn gait(p: &[f32; 7], t: usize) -> [f32; NA] {
-        let phase = std::f32::consts::TAU * p[0] * t as f32 * CONTROL_DT;
-        std::array::from_fn(|j| (phase + p[1 + j]).sin())
-    }
+    use crate::gaits::halfcheetah as gait;
 
     #[test]
     fn sine_gait_beats_standing_still() {
         let mut env = HalfCheetah::new();
         for seed in 0..2 {
             let still = episode(&mut env, seed, |_, _| [0.0; NA]);
-            let moving = episode(&mut env, seed, |_, t| gait(&GAIT, t));
+            let moving = episode(&mut env, seed, |_, t| gait(t));
             assert!(
                 moving > still + 50.0,
                 "gait {moving} m vs standing {still} m"
@@ -466,7 +453,7 @@ mod tests {
             overshoots.sort_by(f32::total_cmp);
             let q = |p: f64| overshoots[((overshoots.len() - 1) as f64 * p) as usize];
             let gait: Vec<f32> = (0..2)
-                .map(|s| episode(&mut env, s, |_, t| gait(&GAIT, t)))
+                .map(|s| episode(&mut env, s, |_, t| gait(t)))
                 .collect();
             println!(
                 "{substeps}x{iterations}: one-step qvel error {rms:.2}, overshoot p99 {:.3} \
@@ -478,7 +465,7 @@ mod tests {
             );
         }
         let gait: Vec<f32> = (0..2)
-            .map(|s| episode(&mut reference, s, |_, t| gait(&GAIT, t)))
+            .map(|s| episode(&mut reference, s, |_, t| gait(t)))
             .collect();
         println!("50x1 reference: gait {gait:?} m");
     }

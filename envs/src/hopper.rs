@@ -106,7 +106,7 @@ pub fn links() -> Vec<LinkDesc> {
 
 pub struct Hopper {
     spec: EnvSpec,
-    robot: Robot,
+    pub(crate) robot: Robot,
     t: usize,
     rng: Pcg64,
 }
@@ -347,18 +347,7 @@ mod tests {
         assert!((0..125).any(|_| env.step(&[0.0; 3]).terminated));
     }
 
-    /// A linear feedback gait `a = W·obs + b`, found by hill-climbing on this env (seeds
-    /// 100–102; rows: thigh, leg, foot).
-    #[rustfmt::skip]
-    const GAIT: [f32; 36] = [-0.0026556775, -0.5935616, -0.14979564, 0.89263177, 0.53993964, -0.020222783, 0.23450468, -0.40940493, -0.37289423, -0.84778047, 0.5286596, -0.24645725, 0.3543651, -0.21086635, 0.07683012, 0.88534665, -0.07569617, -0.02673468, -0.27284372, 0.09318024, 0.05288299, 0.30189896, 0.13514191, -0.16447708, 0.044058666, 0.13440168, -0.4705351, -0.33501223, -0.33944228, -0.45484406, -0.06788257, -0.45766276, 0.015883595, -0.16533677, 0.32743353, 0.0];
-
-    fn gait(obs: &[f32]) -> [f32; 3] {
-        let mut a = [0.0; 3];
-        for (i, ai) in a.iter_mut().enumerate() {
-            *ai = GAIT[33 + i] + (0..11).map(|j| GAIT[i * 11 + j] * obs[j]).sum::<f32>();
-        }
-        a
-    }
+    use crate::gaits::hopper as gait;
 
     #[test]
     fn scripted_gait_beats_standing_still() {

@@ -17,7 +17,10 @@
 //! with its physics settings (which a run may override: [`physics::PhysicsOptions`]).
 
 pub mod ant;
+#[cfg(test)]
+mod fidelity;
 pub mod fpc_assembly;
+pub mod gaits;
 pub mod halfcheetah;
 pub mod hopper;
 pub mod humanoid;

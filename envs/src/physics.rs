@@ -751,6 +751,31 @@ pub struct Robot {
     pub links: Articulation,
     sim: SimParams,
     build: fn(&SimParams) -> (PhysicsWorld, Articulation),
+    tuning: ContactTuning,
+}
+
+/// Overrides of rapier's contact settings on top of what a robot's `build` chose: what the
+/// fidelity measurement sweeps (unset fields keep the robot's own).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ContactTuning {
+    /// Contact softness (natural frequency Hz, damping ratio), for contacts with fixed bodies
+    /// (the floor) and moving ones alike.
+    pub softness: Option<(f32, f32)>,
+    /// Rapier's `normalized_prediction_distance`, m.
+    pub prediction: Option<f32>,
+}
+
+impl ContactTuning {
+    fn apply(&self, w: &mut PhysicsWorld) {
+        let ip = &mut w.integration_parameters;
+        if let Some((hz, zeta)) = self.softness {
+            ip.contact_softness = SpringCoefficients::new(hz, zeta);
+            ip.static_contact_softness = SpringCoefficients::new(hz, zeta);
+        }
+        if let Some(d) = self.prediction {
+            ip.normalized_prediction_distance = d;
+        }
+    }
 }
 
 impl Robot {
@@ -762,12 +787,20 @@ impl Robot {
             links,
             sim,
             build,
+            tuning: ContactTuning::default(),
         }
+    }
+
+    /// Applies `tuning` now and to every world built from here on.
+    pub fn set_tuning(&mut self, tuning: ContactTuning) {
+        self.tuning = tuning;
+        tuning.apply(&mut self.world);
     }
 
     /// Puts the robot at `qpos`/`qvel` (see [`Articulation::set_state`]) in a fresh world.
     pub fn restart(&mut self, qpos: &[f32], qvel: &[f32]) {
         let (mut world, links) = (self.build)(&self.sim);
+        self.tuning.apply(&mut world);
         links.set_state(&mut world, qpos, qvel);
         self.world = world;
         self.links = links;

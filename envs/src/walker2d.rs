@@ -124,7 +124,7 @@ pub fn links() -> Vec<LinkDesc> {
 
 pub struct Walker2d {
     spec: EnvSpec,
-    robot: Robot,
+    pub(crate) robot: Robot,
     t: usize,
     rng: Pcg64,
 }
@@ -394,34 +394,7 @@ mod tests {
         assert!(lens.iter().all(|n| (5..200).contains(n)), "{lens:?}");
     }
 
-    /// A sine + PD gait: joint targets are sines (left leg half a period behind the right),
-    /// the hips also lean against the torso's pitch, and each joint is PD-tracked. Parameters:
-    /// [freq Hz, hip centre, hip amp, knee centre, knee amp, knee phase, ankle centre, ankle amp,
-    /// ankle phase, pitch gain, pitch target, kp, kd].
-    fn sine_pd(p: &[f32; 13], obs: &[f32], t: usize) -> [f32; NA] {
-        let phase = std::f32::consts::TAU * p[0] * t as f32 * CONTROL_DT;
-        let pitch = obs[1];
-        let mut a = [0.0; NA];
-        for leg in 0..2 {
-            let ph = phase + leg as f32 * std::f32::consts::PI;
-            let targets = [
-                p[1] + p[2] * ph.sin() + p[9] * (pitch - p[10]),
-                p[3] + p[4] * (ph + p[5]).sin(),
-                p[6] + p[7] * (ph + p[8]).sin(),
-            ];
-            for (j, target) in targets.iter().enumerate() {
-                let k = 3 * leg + j;
-                a[k] = (p[11] * (target - obs[2 + k]) - p[12] * obs[11 + k]).clamp(-1.0, 1.0);
-            }
-        }
-        a
-    }
-
-    /// [`sine_pd`]'s parameters, found by a short search run once on this env (150 random
-    /// samples then hill-climbing on the episode return of seeds 100–101, ~400 s; a second
-    /// climb on seeds 100–103 found nothing better).
-    #[rustfmt::skip]
-    const GAIT: [f32; 13] = [1.2177813, -0.71206325, 0.27646607, -0.37758756, 0.659655, -1.4125507, 0.6, 0.49059737, 2.6845415, -0.9857106, 0.4873535, 4.922471, 0.79257274];
+    use crate::gaits::walker2d as gait;
 
     /// The gait is modest (a short open-loop search, not a learned policy): measured ~0.5 m in
     /// ~115 steps before it falls (seeds 0–2; 0.84 m over 781 steps on seed 101), where the
@@ -431,7 +404,7 @@ mod tests {
         let mut env = Walker2d::new();
         for seed in 0..3 {
             let (still, ns, _) = episode(&mut env, seed, |_, _| [0.0; NA]);
-            let (moving, n, _) = episode(&mut env, seed, |o, t| sine_pd(&GAIT, o, t));
+            let (moving, n, _) = episode(&mut env, seed, |o, t| gait(o, t));
             assert!(
                 moving > still + 0.3 && moving > 0.3 && n > ns + 30,
                 "seed {seed}: gait {moving} m in {n} steps vs standing {still} m in {ns}"

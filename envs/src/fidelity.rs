@@ -1,0 +1,193 @@
+//! How far a task's physics settings are from converged: each task's scripted gait
+//! ([`crate::gaits`]) over 3 seeds at a setting, against the same policy integrated 10× finer
+//! (rapier steps × 10, same control step, same iterations and contact tuning). The table in
+//! `docs/results/fidelity.md` comes from [`table`]:
+//!
+//! ```text
+//! FIDELITY='hopper:1x4,2x4;walker2d:4x2;halfcheetah:5x1' nice -n 15 \
+//!   cargo test --release -p selkd-envs fidelity::table -- --ignored --nocapture
+//! ```
+//!
+//! A setting is `STEPSxITERATIONS`, optionally followed by `/cHZ,ZETA` (contact softness: natural
+//! frequency Hz and damping ratio, for floor and self contacts) and `/pMETRES` (rapier's
+//! prediction distance); without `FIDELITY` every task is measured at its shipped `SIM`.
+
+use crate::halfcheetah::HalfCheetah;
+use crate::hopper::Hopper;
+use crate::physics::{ContactTuning, SimParams};
+use crate::walker2d::Walker2d;
+use crate::{gaits, Env};
+
+/// One episode's outcome: forward distance (m), return, length, terminated.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Outcome {
+    pub distance: f64,
+    pub ret: f64,
+    pub len: usize,
+    pub terminated: bool,
+}
+
+/// The shipped settings of a task.
+pub(crate) fn shipped(task: &str) -> SimParams {
+    match task {
+        "hopper" => crate::hopper::SIM,
+        "walker2d" => crate::walker2d::SIM,
+        "halfcheetah" => crate::halfcheetah::SIM,
+        _ => panic!("no scripted gait for task {task}"),
+    }
+}
+
+/// The scripted gait of `task` for episodes `seeds`, integrated as `sim` and `tuning` say;
+/// also the seconds spent in `step`.
+pub(crate) fn gait_episodes(
+    task: &str,
+    sim: SimParams,
+    tuning: ContactTuning,
+    seeds: &[u64],
+) -> (Vec<Outcome>, f64) {
+    fn run<E: Env>(
+        env: &mut E,
+        x: impl Fn(&E) -> f32,
+        seed: u64,
+        policy: impl Fn(&[f32], usize) -> Vec<f32>,
+        secs: &mut f64,
+    ) -> Outcome {
+        let mut obs = env.reset(Some(seed));
+        let x0 = x(env);
+        let mut ret = 0.0;
+        for t in 0.. {
+            let a = policy(&obs, t);
+            let start = std::time::Instant::now();
+            let s = env.step(&a);
+            *secs += start.elapsed().as_secs_f64();
+            ret += s.reward;
+            obs = s.obs;
+            if s.terminated || s.truncated {
+                return Outcome {
+                    distance: (x(env) - x0) as f64,
+                    ret,
+                    len: t + 1,
+                    terminated: s.terminated,
+                };
+            }
+        }
+        unreachable!()
+    }
+    let mut secs = 0.0;
+    let outcomes = seeds
+        .iter()
+        .map(|&seed| match task {
+            "hopper" => {
+                let mut env = Hopper::with_sim(sim);
+                env.robot.set_tuning(tuning);
+                let policy = |o: &[f32], _| gaits::hopper(o).to_vec();
+                run(&mut env, |e| e.qpos()[0], seed, policy, &mut secs)
+            }
+            "walker2d" => {
+                let mut env = Walker2d::with_sim(sim);
+                env.robot.set_tuning(tuning);
+                let policy = |o: &[f32], t| gaits::walker2d(o, t).to_vec();
+                run(&mut env, |e| e.qpos()[0], seed, policy, &mut secs)
+            }
+            "halfcheetah" => {
+                let mut env = HalfCheetah::with_sim(sim);
+                env.robot.set_tuning(tuning);
+                let policy = |_: &[f32], t| gaits::halfcheetah(t).to_vec();
+                run(&mut env, |e| e.qpos()[0], seed, policy, &mut secs)
+            }
+            _ => panic!("no scripted gait for task {task}"),
+        })
+        .collect();
+    (outcomes, secs)
+}
+
+/// `sim` with 10× the rapier steps per control step.
+pub(crate) fn finer(sim: SimParams) -> SimParams {
+    SimParams {
+        substeps: sim.substeps * 10,
+        ..sim
+    }
+}
+
+/// |a − b| / |b|.
+pub(crate) fn rel(a: f64, b: f64) -> f64 {
+    (a - b).abs() / b.abs().max(1e-9)
+}
+
+fn mean(o: &[Outcome], f: impl Fn(&Outcome) -> f64) -> f64 {
+    o.iter().map(f).sum::<f64>() / o.len() as f64
+}
+
+/// Parses a setting (see the module doc) on top of `task`'s control step.
+fn parse(task: &str, spec: &str) -> (SimParams, ContactTuning) {
+    let mut parts = spec.split('/');
+    let (s, i) = parts
+        .next()
+        .unwrap()
+        .split_once('x')
+        .expect("STEPSxITERATIONS");
+    let sim = SimParams {
+        substeps: s.parse().unwrap(),
+        solver_iterations: i.parse().unwrap(),
+        ..shipped(task)
+    };
+    let mut tuning = ContactTuning::default();
+    for p in parts {
+        if let Some(c) = p.strip_prefix('c') {
+            let (hz, zeta) = c.split_once(',').expect("cHZ,ZETA");
+            tuning.softness = Some((hz.parse().unwrap(), zeta.parse().unwrap()));
+        } else if let Some(d) = p.strip_prefix('p') {
+            tuning.prediction = Some(d.parse().unwrap());
+        } else {
+            panic!("unknown part {p} of setting {spec}");
+        }
+    }
+    (sim, tuning)
+}
+
+/// The measurement: one markdown row per task and setting (means over seeds 0–2).
+#[test]
+#[ignore]
+fn table() {
+    let spec = std::env::var("FIDELITY")
+        .unwrap_or_else(|_| "hopper:1x4;walker2d:4x2;halfcheetah:5x1".into());
+    println!(
+        "| task | setting | distance m (per seed) | 10× finer | Δ distance | return | 10× finer \
+         | Δ return | length (terminated) | 10× finer | Δ length | steps/s |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let seeds = [0, 1, 2];
+    for task_spec in spec.split(';').filter(|s| !s.is_empty()) {
+        let (task, settings) = task_spec.split_once(':').expect("TASK:SETTINGS");
+        for setting in settings.split(',') {
+            let (sim, tuning) = parse(task, setting);
+            let (at, secs) = gait_episodes(task, sim, tuning, &seeds);
+            let (fine, _) = gait_episodes(task, finer(sim), tuning, &seeds);
+            let steps: usize = at.iter().map(|o| o.len).sum();
+            let per_seed: Vec<String> = at.iter().map(|o| format!("{:.2}", o.distance)).collect();
+            let fine_seed: Vec<String> =
+                fine.iter().map(|o| format!("{:.2}", o.distance)).collect();
+            let d = |o: &Outcome| o.distance;
+            let r = |o: &Outcome| o.ret;
+            let l = |o: &Outcome| o.len as f64;
+            println!(
+                "| {task} | {setting} | {:.2} ({}) | {:.2} ({}) | {:.0}% | {:.1} | {:.1} | {:.0}% \
+                 | {:.0} ({}T) | {:.0} ({}T) | {:.0}% | {:.0} |",
+                mean(&at, d),
+                per_seed.join(", "),
+                mean(&fine, d),
+                fine_seed.join(", "),
+                100.0 * rel(mean(&at, d), mean(&fine, d)),
+                mean(&at, r),
+                mean(&fine, r),
+                100.0 * rel(mean(&at, r), mean(&fine, r)),
+                mean(&at, l),
+                at.iter().filter(|o| o.terminated).count(),
+                mean(&fine, l),
+                fine.iter().filter(|o| o.terminated).count(),
+                100.0 * rel(mean(&at, l), mean(&fine, l)),
+                steps as f64 / secs,
+            );
+        }
+    }
+}
