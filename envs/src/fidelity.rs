@@ -222,3 +222,8 @@ fn assert_converged(task: &str) {
 fn hopper_gait_converged() {
     assert_converged("hopper");
 }
+
+#[test]
+fn walker2d_gait_converged() {
+    assert_converged("walker2d");
+}
