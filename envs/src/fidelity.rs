@@ -1,7 +1,7 @@
 //! How far a task's physics settings are from converged: each task's scripted gait
 //! ([`crate::gaits`]) over 3 seeds at a setting, against the same policy integrated 10× finer
 //! (rapier steps × 10, same control step, same iterations and contact tuning). The table in
-//! `docs/results/fidelity.md` comes from [`table`]:
+//! `docs/results/fidelity.md` comes from [`table`] (the command there; a shorter example):
 //!
 //! ```text
 //! FIDELITY='hopper:1x4,2x4;walker2d:4x2;halfcheetah:5x1' nice -n 15 \

@@ -41,7 +41,7 @@ const CONTROL_DT: f32 = 0.008;
 /// integrated 10× finer. The old 1 × 4 with rapier's stiff default contacts was off by 22% in
 /// distance and 367% in length (the gait stood for all 1000 steps only through integration
 /// error; 10× finer it falls after ~210); 2 × 4 alone 11% each; 2 × 4 with 8 Hz, ζ = 1
-/// contacts 0–1%, at roughly half 1 × 4's speed. Earlier measurements (saturated bang-bang
+/// contacts 0–1%, at 0.5–0.8× 1 × 4's speed. Earlier measurements (saturated bang-bang
 /// torques, random episodes): every setting from 1×2 to 8×8 stays finite and on the floor;
 /// joint-limit overshoot 1×2 0.022 rad, 1×4 0.003 rad, 2×4 0.002 rad.
 pub const SIM: SimParams = SimParams {

@@ -49,8 +49,8 @@ const CONTROL_DT: f32 = 0.008;
 /// Chosen for convergence (issue 32; `docs/results/fidelity.md`, `crate::fidelity`): the
 /// scripted gait's mean distance, return and episode length over seeds 0–2 against the same
 /// gait integrated 10× finer were off by 3% / 28% / 38% at the old 4 × 2 (2 ms, MuJoCo's own
-/// step) and by 1% / 3% / 4% at 8 × 2, at about half the speed (4 × 4 with 8 Hz contacts
-/// converged as well, and was slower). Earlier measurements (4 seeds × 500 steps of saturated
+/// step) and by 1% / 3% / 4% at 8 × 2, at 0.3–0.5× the speed (4 × 4 with 8 Hz contacts
+/// converged as well). Earlier measurements (4 seeds × 500 steps of saturated
 /// bang-bang torques, 30 random episodes per setting): every setting from 1×2 to 8×2 stayed
 /// finite and above the floor with random-episode mean length 18–19 steps; the worst
 /// joint-limit overshoot once fallen, feet pressed against their limits, was 1×2 0.36 rad,
