@@ -4,8 +4,8 @@
 
 /// Hopper: a linear feedback gait `a = W·obs + b`, found by hill-climbing on the hopper at its
 /// old 1 × 4 stiff-contact setting (seeds 100–102; rows: thigh, leg, foot). It stood for all
-/// 1000 steps there only through integration error; at the converged 2 × 4 soft-contact
-/// setting it falls after 200–270 steps, as it does integrated 10× finer.
+/// 1000 steps there only through integration error; at the converged soft-contact setting
+/// it falls after 200–270 steps, as it does integrated 10× finer.
 #[rustfmt::skip]
 pub const HOPPER: [f32; 36] = [-0.0026556775, -0.5935616, -0.14979564, 0.89263177, 0.53993964, -0.020222783, 0.23450468, -0.40940493, -0.37289423, -0.84778047, 0.5286596, -0.24645725, 0.3543651, -0.21086635, 0.07683012, 0.88534665, -0.07569617, -0.02673468, -0.27284372, 0.09318024, 0.05288299, 0.30189896, 0.13514191, -0.16447708, 0.044058666, 0.13440168, -0.4705351, -0.33501223, -0.33944228, -0.45484406, -0.06788257, -0.45766276, 0.015883595, -0.16533677, 0.32743353, 0.0];
 

@@ -43,21 +43,25 @@ use rapier3d::prelude::PhysicsWorld;
 
 const GEAR: f32 = 100.0;
 const CONTROL_DT: f32 = 0.008;
-/// Physics integration per control step: 8 rapier steps of 1 ms with 2 solver iterations
-/// each.
+/// Physics integration per control step: 4 rapier steps of 2 ms (MuJoCo's own timestep) with
+/// 2 solver iterations each.
 ///
-/// Chosen for convergence (issue 32; `docs/results/fidelity.md`, `crate::fidelity`): the
-/// scripted gait's mean distance, return and episode length over seeds 0–2 against the same
-/// gait integrated 10× finer were off by 3% / 28% / 38% at the old 4 × 2 (2 ms, MuJoCo's own
-/// step) and by 1% / 3% / 4% at 8 × 2, at 0.3–0.5× the speed (4 × 4 with 8 Hz contacts
-/// converged as well). Earlier measurements (4 seeds × 500 steps of saturated
-/// bang-bang torques, 30 random episodes per setting): every setting from 1×2 to 8×2 stayed
-/// finite and above the floor with random-episode mean length 18–19 steps; the worst
-/// joint-limit overshoot once fallen, feet pressed against their limits, was 1×2 0.36 rad,
-/// 1×4 0.15, 2×4 0.085, 4×2 0.070, 4×4 0.037 rad.
+/// Measured (4 seeds × 500 steps of saturated bang-bang torques, and 30 random episodes, per
+/// setting; rapier steps × iterations): every setting from 1×2 to 8×2 stayed finite and above
+/// the floor, and the random-episode mean length was 18–19 steps for all. What changes is how
+/// well the joint limits hold once the walker has fallen and its light feet (armature 0.01,
+/// against the hopper's 1) are pressed against their limits by the floor: worst overshoot
+/// 1×2 0.36 rad, 1×4 0.15, 2×4 0.085, 4×2 0.070, 4×4 0.037 rad. 4×2 holds them to ~4° at about
+/// half the cost of 4×4.
+///
+/// Converged (issue 32; `docs/results/fidelity.md`, `crate::fidelity`): the scripted gait's
+/// mean distance / return / length over seeds 0–9 are within 7% / 2% / 5% of the same gait
+/// integrated 10× finer (2 × 2: 60% / 0% / 32%). Over seeds 0–2 alone 4 × 2 looked off by 28% in
+/// return and 8 × 2 converged; over ten seeds 8 × 2 is the worse (15–17%): three seeds of a gait
+/// that falls after ~120 steps are seed noise at this level.
 pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
-    substeps: 8,
+    substeps: 4,
     solver_iterations: 2,
 };
 const INIT_Z: f32 = 1.25;
