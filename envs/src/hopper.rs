@@ -42,7 +42,7 @@ const CONTROL_DT: f32 = 0.008;
 /// integrated 10× finer are off by 3% / 2% / 1%. The old 1 × 4 with rapier's stiff default
 /// contacts was off by 29% / 293% / 348% (the gait stood for ~1000 steps only through
 /// integration error; 10× finer it falls after ~210); 2 × 4 soft 17% each, 4 × 4 soft 6–22%.
-/// 1 × 8 costs about what 2 × 4 does. Earlier measurements (saturated bang-bang torques, random
+/// 1 × 8 ran at 0.3–0.5× the old 1 × 4's steps/s (loaded 2-core machine). Earlier measurements (saturated bang-bang torques, random
 /// episodes, stiff contacts): every setting from 1×2 to 8×8 stays finite and on the floor;
 /// joint-limit overshoot 1×2 0.022 rad, 1×4 0.003 rad, 2×4 0.002 rad.
 pub const SIM: SimParams = SimParams {
