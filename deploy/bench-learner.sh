@@ -13,7 +13,7 @@
 #   PYTHON    the Python that runs the peer (default: python3 with the libtorch wheel that
 #             deploy/setup.sh installed on its path)
 #   SELKD     the selkd binary (default target/release/selkd)
-# Prints one line per run as it finishes, then a Markdown table for the README's Performance section.
+# Prints one line per run as it finishes, then a Markdown table for docs/performance.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 rounds=${1:-3}

@@ -3,7 +3,10 @@
 // otherwise be dropped, and `--device cuda` would find no CUDA.
 use std::path::PathBuf;
 
+include!("../gymnasium/python_rpath.rs");
+
 fn main() {
+    python_rpath();
     println!("cargo:rerun-if-env-changed=LIBTORCH");
     let Ok(libtorch) = std::env::var("LIBTORCH") else {
         return;

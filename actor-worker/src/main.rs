@@ -10,8 +10,8 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use selkd_policy::{evaluation, Actor, ActorLayout};
 use selkd_protocol::{
-    services, Control, CursorHeader, Name, Report, ReportKind, Services, TransitionHeader,
-    TransitionRow, PROTOCOL_VERSION,
+    check_peer, services, Control, CursorHeader, Handshake, Report, ReportKind, Services,
+    TransitionHeader, TransitionRow, WorkerPorts,
 };
 use std::time::{Duration, Instant};
 
@@ -42,14 +42,9 @@ struct Args {
 }
 
 fn main() {
-    // Colour only on a terminal: the launcher sends these logs to files.
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
-        .init();
+    // `gymnasium:` envs step in an embedded Python.
+    selkd_gymnasium::register();
+    selkd_protocol::init_tracing();
     let args = Args::parse();
     match run(&args) {
         Ok(()) => {}
@@ -115,16 +110,28 @@ fn run(args: &Args) -> Result<()> {
     let mut env = selkd_envs::make_with(&args.env, &env_options)?;
     let spec = env.spec().clone();
     let options_fingerprint = selkd_envs::options_fingerprint(&env_options);
-    let node = services::node(&format!("actor-worker-{}", args.worker))
+    // A predecessor killed while it made its node left an entry iceoryx2 cannot clean.
+    match selkd_protocol::stale::remove_half_made_nodes() {
+        Ok(r) => {
+            for p in &r.removed {
+                tracing::info!(
+                    "removed the half-made iceoryx2 node entry {} (its process died while making it)",
+                    p.display()
+                );
+            }
+            for (p, why) in &r.left {
+                tracing::warn!("left the iceoryx2 node entry {}: {why}", p.display());
+            }
+        }
+        Err(e) => tracing::warn!("looking for half-made iceoryx2 node entries: {e}"),
+    }
+    // Named after the run: the learner looks for it to tell a gone worker from a quiet one.
+    let node = services::node(&selkd_protocol::worker_node_name(&args.run_id, args.worker))
         .map_err(|e| anyhow::anyhow!("starting iceoryx2 node: {e}"))?;
     let svc = Services::new(&args.run_id);
-    let ctx = |what: &'static str| move |e: services::Error| anyhow::anyhow!("opening {what}: {e}");
 
     // The learner announces the run on `control` (history 1): wait for it, then check we fit.
-    let control_sub = services::control(&node, &svc)
-        .map_err(ctx("control"))?
-        .subscriber_builder()
-        .create()?;
+    let control_sub = WorkerPorts::control(&node, &svc).map_err(|e| anyhow::anyhow!("{e}"))?;
     let deadline = Instant::now() + Duration::from_secs_f64(args.connect_timeout);
     let mut control: Control = loop {
         if let Some(s) = control_sub.receive()? {
@@ -135,13 +142,8 @@ fn run(args: &Args) -> Result<()> {
         }
         std::thread::sleep(Duration::from_millis(20));
     };
-    selkd_protocol::check_peer(
-        &control,
-        spec.id,
-        options_fingerprint,
-        spec.obs_dim,
-        spec.act_dim,
-    )?;
+    let ours = Handshake::ours(spec.id, options_fingerprint, spec.obs_dim, spec.act_dim);
+    check_peer(&control.handshake(), &ours)?;
     if args.worker >= control.actors as usize {
         let msg = format!(
             "--worker {} is out of range: the run has {} actors (0..{})",
@@ -158,31 +160,20 @@ fn run(args: &Args) -> Result<()> {
         .collect();
     let layout = ActorLayout::new(spec.obs_dim, spec.act_dim, &hidden);
 
-    let weights_sub = services::weights(&node, &svc, args.worker)
-        .map_err(ctx("weights"))?
-        .subscriber_builder()
-        .create()?;
-    let transitions_svc = services::transitions(&node, &svc, k).map_err(ctx("transitions"))?;
     let row = TransitionRow {
         obs_dim: spec.obs_dim,
         act_dim: spec.act_dim,
     };
-    let publisher = transitions_svc
-        .publisher_builder()
-        .initial_max_slice_len(row.len())
-        .create()?;
-    let reports = services::reports(&node, &svc, k)
-        .map_err(ctx("reports"))?
-        .publisher_builder()
-        .create()?;
-    let to_learner = services::to_learner(&node, &svc, k)
-        .map_err(ctx("to-learner"))?
-        .notifier_builder()
-        .create()?;
-    let wake = services::to_workers(&node, &svc)
-        .map_err(ctx("to-workers"))?
-        .listener_builder()
-        .create()?;
+    let WorkerPorts {
+        control: control_sub,
+        weights: weights_sub,
+        cursor: cursor_sub,
+        transitions: publisher,
+        reports,
+        to_learner,
+        wake,
+    } = WorkerPorts::open(&node, &svc, control_sub, args.worker, k, row.len())
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
 
     let mut actor: Option<Actor> = None;
     let mut weights_version = 0u64;
@@ -215,11 +206,11 @@ fn run(args: &Args) -> Result<()> {
         worker: args.worker as u32,
         generation: args.generation,
         incarnation,
-        protocol_version: PROTOCOL_VERSION,
-        env: Name::new(spec.id),
-        env_options: options_fingerprint,
-        obs_dim: spec.obs_dim as u32,
-        act_dim: spec.act_dim as u32,
+        protocol_version: ours.protocol_version,
+        env: ours.env,
+        env_options: ours.env_options,
+        obs_dim: ours.obs_dim,
+        act_dim: ours.act_dim,
         weights_version: version,
         epoch,
         episodes,
@@ -228,10 +219,6 @@ fn run(args: &Args) -> Result<()> {
     };
 
     // Say hello and wait for the cursor: where the learner's record of this actor's rollout ends.
-    let cursor_sub = services::cursor(&node, &svc, args.worker)
-        .map_err(ctx("cursor"))?
-        .subscriber_builder()
-        .create()?;
     let deadline = Instant::now() + Duration::from_secs_f64(args.connect_timeout);
     let mut last_hello: Option<Instant> = None;
     let (cursor, recorded_actions) = loop {
@@ -278,8 +265,10 @@ fn run(args: &Args) -> Result<()> {
         ))
         .into());
     }
+    env_failed(&*env)?;
     for (i, action) in recorded_actions.chunks(spec.act_dim.max(1)).enumerate() {
         let step = env.step(action);
+        env_failed(&*env)?;
         if step.terminated || step.truncated {
             return Err(CannotJoin(format!(
                 "replaying episode {episode}'s {t} recorded steps ended it at step {i}: the env does not repeat its episodes (is this actor-worker built from the same source as the learner?)"
@@ -336,6 +325,7 @@ fn run(args: &Args) -> Result<()> {
                 policy,
                 (0..control.eval_episodes as u64).map(|e| evaluation::epoch_seed(seed, epoch, e)),
             );
+            env_failed(&*eval_env)?;
             let (mean_return, success_rate) = (result.mean_return(), result.success_rate());
             reports.send_copy(hello(
                 ReportKind::Evaluation,
@@ -364,6 +354,7 @@ fn run(args: &Args) -> Result<()> {
                 }
             };
             let step = env.step(&action);
+            env_failed(&*env)?;
             episode_return += step.reward;
             let done = step.terminated || step.truncated;
             row.write(
@@ -394,6 +385,7 @@ fn run(args: &Args) -> Result<()> {
             if done {
                 episode += 1;
                 obs = env.reset(Some(episode_seed(seed, args.worker, episode)));
+                env_failed(&*env)?;
                 t = 0;
                 episode_return = 0.0;
             } else {
@@ -412,9 +404,18 @@ fn run(args: &Args) -> Result<()> {
     }
 }
 
+/// An env that failed (a Python exception in a Gymnasium env) fails the worker with its
+/// message; a restart would only fail again the same way, so it counts as "cannot join".
+fn env_failed(env: &dyn selkd_envs::Env) -> Result<()> {
+    match env.failure() {
+        Some(why) => Err(selkd_envs::EnvError::Failed(why).into()),
+        None => Ok(()),
+    }
+}
+
 /// The newest cursor the learner published for `incarnation`, with its actions.
 fn latest_cursor(
-    sub: &iceoryx2::port::subscriber::Subscriber<ipc::Service, [f32], CursorHeader>,
+    sub: &services::Subscriber<[f32], CursorHeader>,
     incarnation: u64,
 ) -> Result<Option<(CursorHeader, Vec<f32>)>> {
     let mut found = None;
@@ -429,7 +430,7 @@ fn latest_cursor(
 /// The incarnation of a cursor published for another process of this actor, if any: the learner
 /// has handed the actor to it.
 fn newer_cursor(
-    sub: &iceoryx2::port::subscriber::Subscriber<ipc::Service, [f32], CursorHeader>,
+    sub: &services::Subscriber<[f32], CursorHeader>,
     incarnation: u64,
 ) -> Result<Option<u64>> {
     let mut other = None;

@@ -83,6 +83,12 @@ fn run_inner(args: ExportArgs) -> Result<()> {
     Tensor::write_safetensors(&tensors, &weights)
         .with_context(|| format!("writing {}", weights.display()))?;
 
+    if !spec.gymnasium_action_scale.is_finite() {
+        bail!(
+            "{}: its action space is not ±c in every dimension, so a bundle's one action_scale cannot map the policy's [-1, 1] onto it; map actions as the workers do, low + (a + 1)/2 · (high − low), from the env's own action_space",
+            spec.id
+        );
+    }
     let scores = state.ranking.scores();
     let score = state.score_of(loaded.index);
     let metadata = serde_json::json!({

@@ -44,6 +44,10 @@ enum Command {
         /// What to draw: the evaluation return, or the success rate (tasks with success).
         #[arg(long, value_enum, default_value = "return")]
         metric: plot::Metric,
+        /// What to draw against: env steps (all actors), rounds (env steps / K), critic
+        /// updates, or wall-clock seconds.
+        #[arg(long, value_enum, default_value = "env-steps")]
+        x: plot::XAxis,
     },
     /// Print the resolved config: every key, its value and what it does (TOML).
     Config(config_cmd::ConfigArgs),
@@ -64,6 +68,8 @@ enum Command {
 fn main() {
     // Before anything else: it may execute selkd again (its children inherit the setting).
     selkd_learner::restart_with_runtime_settings();
+    // `gymnasium:` envs step in an embedded Python.
+    selkd_gymnasium::register();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => usage_error(e),
@@ -76,7 +82,12 @@ fn main() {
         Command::Eval(args) => eval::run(args).map(|()| 0),
         Command::Export(args) => export::run(args).map(|()| 0),
         Command::Render(args) => render::run(args).map(|()| 0),
-        Command::Plot { runs, out, metric } => plot::run(&runs, out, metric).map(|p| {
+        Command::Plot {
+            runs,
+            out,
+            metric,
+            x,
+        } => plot::run(&runs, out, metric, x).map(|p| {
             eprintln!("selkd: wrote {}", p.display());
             0
         }),

@@ -12,6 +12,7 @@
 
 use crate::report::align::Aligned;
 use crate::report::figure::{colour, LineChart, Series};
+pub use crate::report::runs::XAxis;
 use crate::report::runs::{check_same_config, Metrics, Run};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
@@ -40,7 +41,22 @@ fn read(run: &Path, metric: Metric) -> Result<Metrics> {
     Ok(m)
 }
 
-pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric) -> Result<PathBuf> {
+/// K of a run, from its config.toml: only the rounds axis needs it, so a lone metrics.csv can
+/// still be drawn against the others.
+fn actors(run: &Path, x: XAxis) -> Result<u64> {
+    if x != XAxis::Rounds {
+        return Ok(1);
+    }
+    if !run.join("config.toml").exists() {
+        bail!(
+            "--x rounds needs {} (its algo.actors, K: rounds = env steps / K)",
+            run.join("config.toml").display()
+        );
+    }
+    Ok(Run::load(run)?.actors)
+}
+
+pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric, x: XAxis) -> Result<PathBuf> {
     if runs.is_empty() {
         bail!("name at least one run directory");
     }
@@ -52,6 +68,7 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric) -> Result<Pat
     };
     let chart = if runs.len() == 1 {
         let m = read(&runs[0], metric)?;
+        let xs = m.xs(x, actors(&runs[0], x)?, &runs[0])?;
         let mut series: Vec<Series> = m
             .actors(metric)
             .iter()
@@ -59,7 +76,7 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric) -> Result<Pat
             .map(|(a, ys)| {
                 let mut s = Series::line(
                     format!("actor {a}"),
-                    m.steps.iter().copied().zip(ys.iter().copied()).collect(),
+                    xs.iter().copied().zip(ys.iter().copied()).collect(),
                     colour(a),
                 );
                 s.width = 1.2;
@@ -73,14 +90,14 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric) -> Result<Pat
         };
         let mut best = Series::line(
             label,
-            m.steps.iter().copied().zip(m.ranked(metric)).collect(),
+            xs.iter().copied().zip(m.ranked(metric)).collect(),
             "#000".into(),
         );
         best.width = 3.0;
         series.push(best);
         LineChart {
             title: format!("{}: {} per actor", runs[0].display(), metric.label()),
-            x_label: "env steps (all actors together)".into(),
+            x_label: x.label().into(),
             y_label: y_label.into(),
             series,
             y_range,
@@ -97,17 +114,20 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric) -> Result<Pat
         let refs: Vec<&Run> = loaded.iter().collect();
         check_same_config(&refs)?;
         let ranked: Vec<Vec<f64>> = loaded.iter().map(|r| r.metrics.ranked(metric)).collect();
-        let curves: Vec<(&[f64], &[f64])> = loaded
+        let xs = loaded.iter().map(|r| r.xs(x)).collect::<Result<Vec<_>>>()?;
+        let curves: Vec<(&[f64], &[f64])> = xs
             .iter()
             .zip(&ranked)
-            .map(|(r, y)| (&r.metrics.steps[..], &y[..]))
+            .map(|(xs, y)| (&xs[..], &y[..]))
             .collect();
-        let a = Aligned::new(&curves).context("lining the runs up on env steps")?;
+        let a =
+            Aligned::new(&curves).with_context(|| format!("lining the runs up on {}", x.name()))?;
         let (mean, sd) = (a.mean(), a.std());
         let mut s = Series::line(
             format!(
-                "ranked actor, mean of {} runs (band ± ½ sample std), aligned on env steps",
-                runs.len()
+                "ranked actor, mean of {} runs (band ± ½ sample std), aligned on {}",
+                runs.len(),
+                x.name()
             ),
             a.grid.iter().copied().zip(mean.iter().copied()).collect(),
             colour(0),
@@ -127,7 +147,7 @@ pub fn run(runs: &[PathBuf], out: Option<PathBuf>, metric: Metric) -> Result<Pat
                 loaded[0].env,
                 metric.label()
             ),
-            x_label: "env steps (all actors together)".into(),
+            x_label: format!("{}; budget {}", x.label(), loaded[0].budget_text()),
             y_label: y_label.into(),
             series: vec![s],
             y_range,
@@ -157,7 +177,13 @@ mod tests {
              1,1000,-50.0,-40.0,0.0,0.1\n\
              2,2000,-20.0,-30.0,0.4,0.7\n",
         );
-        let out = run(std::slice::from_ref(&dir), None, Metric::Success).unwrap();
+        let out = run(
+            std::slice::from_ref(&dir),
+            None,
+            Metric::Success,
+            XAxis::EnvSteps,
+        )
+        .unwrap();
         assert_eq!(out, dir.join("success.svg"));
         let svg = std::fs::read_to_string(&out).unwrap();
         assert!(svg.contains("evaluation success rate per actor"));
@@ -168,8 +194,15 @@ mod tests {
         );
         // Rates are drawn on [0, 1] with round ticks.
         assert!(svg.contains(">0.2<") && svg.contains(">1.0<"), "{svg}");
-        let returns =
-            std::fs::read_to_string(run(std::slice::from_ref(&dir), None, Metric::Return).unwrap());
+        let returns = std::fs::read_to_string(
+            run(
+                std::slice::from_ref(&dir),
+                None,
+                Metric::Return,
+                XAxis::EnvSteps,
+            )
+            .unwrap(),
+        );
         assert!(returns.unwrap().contains("evaluation return per actor"));
         let _ = std::fs::remove_dir_all(&dir);
     }
@@ -185,9 +218,16 @@ mod tests {
              2,2000,2,-801.3,-977.9,-655.0\n\
              3,3000,2,-402.8,-530.1,-151.2\n",
         );
-        let svg =
-            std::fs::read_to_string(run(std::slice::from_ref(&dir), None, Metric::Return).unwrap())
-                .unwrap();
+        let svg = std::fs::read_to_string(
+            run(
+                std::slice::from_ref(&dir),
+                None,
+                Metric::Return,
+                XAxis::EnvSteps,
+            )
+            .unwrap(),
+        )
+        .unwrap();
         let attr = |line: &str, name: &str| -> f64 {
             let at = line.find(&format!(" {name}=\"")).unwrap() + name.len() + 3;
             line[at..].split('"').next().unwrap().parse().unwrap()
@@ -241,9 +281,14 @@ mod tests {
             "nosuccess",
             "epoch,env_steps,eval_return_0,eval_success_0\n1,1000,-50.0,NaN\n",
         );
-        let e = run(std::slice::from_ref(&dir), None, Metric::Success)
-            .unwrap_err()
-            .to_string();
+        let e = run(
+            std::slice::from_ref(&dir),
+            None,
+            Metric::Success,
+            XAxis::EnvSteps,
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("must report success"), "{e}");
         let _ = std::fs::remove_dir_all(&dir);
     }
@@ -269,9 +314,14 @@ mod aligned {
             "epoch,env_steps,best,eval_return_0,eval_return_1\n1,1000,1,-900,-500\n",
             None,
         );
-        let e = run(&[d.join("a"), d.join("c")], None, Metric::Return)
-            .unwrap_err()
-            .to_string();
+        let e = run(
+            &[d.join("a"), d.join("c")],
+            None,
+            Metric::Return,
+            XAxis::EnvSteps,
+        )
+        .unwrap_err()
+        .to_string();
         assert!(
             e.contains("different envs") && e.contains("a (pendulum)") && e.contains("c (hopper)"),
             "{e}"
@@ -280,6 +330,7 @@ mod aligned {
             &[d.join("a"), d.join("b")],
             Some(d.join("x.svg")),
             Metric::Return,
+            XAxis::EnvSteps,
         )
         .unwrap();
         let svg = std::fs::read_to_string(out).unwrap();
@@ -288,6 +339,100 @@ mod aligned {
         let line = svg.lines().find(|l| l.starts_with("<polyline")).unwrap();
         assert_eq!(line.matches(',').count(), 3, "{line}");
         assert!(svg.contains("mean of 2 runs"), "{svg}");
+        // Against rounds (K = 2): the same points at 500, 750 and 1000 rounds, and the axis
+        // says so.
+        let out = run(
+            &[d.join("a"), d.join("b")],
+            Some(d.join("r.svg")),
+            Metric::Return,
+            XAxis::Rounds,
+        )
+        .unwrap();
+        let svg = std::fs::read_to_string(out).unwrap();
+        assert!(
+            svg.contains("rounds (each of the K actors takes one step"),
+            "{svg}"
+        );
+        assert!(
+            svg.contains("budget 2000 env steps = 1000 rounds of K = 2"),
+            "{svg}"
+        );
+        // The x axis ends at 1 000 rounds (against env steps it would be 2 000, "2.0k").
+        assert_eq!(
+            x_ticks(&svg).last().map(String::as_str),
+            Some("1000"),
+            "{:?}",
+            x_ticks(&svg)
+        );
+        // These metrics.csv files have no critic_updates column: a one-line error naming it.
+        let e = run(
+            &[d.join("a"), d.join("b")],
+            Some(d.join("u.svg")),
+            Metric::Return,
+            XAxis::CriticUpdates,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("no critic_updates column") && !e.contains('\n'),
+            "{e}"
+        );
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    /// The x axis's tick labels, left to right.
+    fn x_ticks(svg: &str) -> Vec<String> {
+        // A tick is a grid line and its label on one line of the SVG.
+        svg.lines()
+            .filter(|l| l.starts_with("<line") && l.contains(r#"text-anchor="middle">"#))
+            .filter_map(|l| {
+                l.rsplit("\">")
+                    .next()?
+                    .strip_suffix("</text>")
+                    .map(str::to_string)
+            })
+            .collect()
+    }
+
+    /// One run against each axis: its points' x come from env_steps / K, critic_updates and
+    /// wall_s (values picked by hand).
+    #[test]
+    fn one_run_is_drawn_against_each_axis_from_its_own_columns() {
+        let d = std::env::temp_dir().join(format!("selkd-plot-axes-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        fake_run(&d, &config("pendulum", 1, 4),
+            "epoch,env_steps,wall_s,critic_updates,best,eval_return_0\n1,4000,30.5,600,0,-400\n2,8000,61.0,1200,0,-300\n", None);
+        let m = Metrics::read(&d).unwrap();
+        assert_eq!(m.xs(XAxis::Rounds, 4, &d).unwrap(), vec![1000.0, 2000.0]);
+        assert_eq!(
+            m.xs(XAxis::CriticUpdates, 4, &d).unwrap(),
+            vec![600.0, 1200.0]
+        );
+        assert_eq!(m.xs(XAxis::WallClock, 4, &d).unwrap(), vec![30.5, 61.0]);
+        for (x, label, last) in [
+            (XAxis::EnvSteps, "env steps (transitions", "8k"),
+            (XAxis::Rounds, "rounds (each", "2000"),
+            (XAxis::CriticUpdates, "critic updates", "1200"),
+            (XAxis::WallClock, "wall-clock seconds", "70"),
+        ] {
+            let svg = std::fs::read_to_string(
+                run(
+                    std::slice::from_ref(&d),
+                    Some(d.join("p.svg")),
+                    Metric::Return,
+                    x,
+                )
+                .unwrap(),
+            )
+            .unwrap();
+            assert!(svg.contains(label), "{x:?}: {svg}");
+            assert_eq!(
+                x_ticks(&svg).last().map(String::as_str),
+                Some(last),
+                "{x:?}: {:?}",
+                x_ticks(&svg)
+            );
+        }
         let _ = std::fs::remove_dir_all(&d);
     }
 }

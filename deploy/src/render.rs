@@ -6,12 +6,16 @@
 //! scene's extent) and height (its focus) are fixed by the first frame, and it follows the
 //! scene's focus sideways (a running robot stays in the picture while the checkered floor shows
 //! it moving).
+//!
+//! A Gymnasium env (`gymnasium:<id>`) draws itself instead: it is made with
+//! `render_mode="rgb_array"` ([`selkd_gymnasium::make_drawing`]) and its frames, scaled to fit
+//! `--size` where they come at another size, are the pictures.
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 use rand::{Rng, SeedableRng};
 use selkd_envs::scene::Scene;
-use selkd_envs::EnvOptions;
+use selkd_envs::{EnvOptions, Picture};
 use selkd_learner::checkpoint::{load_actor, LoadedActor};
 use selkd_learner::config::Config;
 use selkd_render::{render, Camera};
@@ -19,7 +23,8 @@ use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug)]
 pub struct RenderArgs {
-    /// Env to draw (default: the run's or the checkpoint's env).
+    /// Env to draw (default: the run's or the checkpoint's env); `gymnasium:<id>` draws with the
+    /// env's own `rgb_array`.
     #[arg(long)]
     env: Option<String>,
     /// The env's options as JSON (`{"g": 12.0}`) or TOML (`g = 12.0`); default: the run's.
@@ -171,7 +176,7 @@ fn run_inner(args: RenderArgs) -> Result<()> {
         (Some(e), _) => e.clone(),
         (None, Some(c)) => c.run.env.clone(),
         (None, None) => bail!(
-            "which env? pass --env NAME ({}), or --run RUN_DIR / --checkpoint DIR of a run",
+            "which env? pass --env NAME ({}, or gymnasium:<id>), or --run RUN_DIR / --checkpoint DIR of a run",
             selkd_envs::names().join(", ")
         ),
     };
@@ -181,7 +186,11 @@ fn run_inner(args: RenderArgs) -> Result<()> {
         (None, Some(c)) if c.run.env == env_name => c.env_options.clone(),
         _ => EnvOptions::new(),
     };
-    let mut env = selkd_envs::make_with(&env_name, &options)?;
+    let mut env = if env_name.starts_with(selkd_gymnasium::PREFIX) {
+        selkd_gymnasium::make_drawing(&env_name, &options, w, h)?
+    } else {
+        selkd_envs::make_with(&env_name, &options)?
+    };
     let spec = env.spec().clone();
     if let Some(l) = &loaded {
         let layout = l.actor.layout();
@@ -205,13 +214,19 @@ fn run_inner(args: RenderArgs) -> Result<()> {
     // The episode.
     let started = std::time::Instant::now();
     let mut obs = env.reset(Some(args.seed));
-    let no_scene = || {
-        anyhow!(
-            "env `{}` cannot be drawn yet (it has no Env::scene)",
-            spec.id
-        )
+    let snap = |env: &dyn selkd_envs::Env| -> Result<Frame> {
+        if let Some(scene) = env.scene() {
+            return Ok(Frame::Scene(scene));
+        }
+        match env.picture() {
+            Some(p) => Ok(Frame::Picture(p.map_err(|e| anyhow!(e))?)),
+            None => bail!(
+                "env `{}` cannot be drawn yet (it has no Env::scene)",
+                spec.id
+            ),
+        }
     };
-    let mut frames: Vec<Scene> = vec![env.scene().ok_or_else(no_scene)?];
+    let mut frames: Vec<Frame> = vec![snap(env.as_ref())?];
     let mut rng = rand_pcg::Pcg64::seed_from_u64(args.seed ^ 0x5eed_fac7_10a5);
     let (mut ret, mut taken, mut success, mut ended) = (0.0, 0, None, "time limit");
     for t in 0..steps {
@@ -227,7 +242,7 @@ fn run_inner(args: RenderArgs) -> Result<()> {
         success = s.success.or(success);
         let done = s.terminated || s.truncated;
         if (t + 1) % every == 0 || done || t + 1 == steps {
-            frames.push(env.scene().ok_or_else(no_scene)?);
+            frames.push(snap(env.as_ref())?);
         }
         obs = s.obs;
         if done {
@@ -244,11 +259,16 @@ fn run_inner(args: RenderArgs) -> Result<()> {
     }
 
     // The pictures.
-    let first = &frames[0];
     let pictures = |indices: &[usize]| -> Vec<Vec<u8>> {
         indices
             .iter()
-            .map(|&i| render(&frames[i], &Camera::following(first, &frames[i]), w, h))
+            .map(|&i| match (&frames[0], &frames[i]) {
+                (Frame::Scene(first), Frame::Scene(s)) => {
+                    render(s, &Camera::following(first, s), w, h)
+                }
+                (_, Frame::Picture(p)) => fit(p, w, h),
+                (Frame::Picture(_), Frame::Scene(_)) => unreachable!("an env draws one way"),
+            })
             .collect()
     };
     if let Some(parent) = args.out.parent().filter(|p| !p.as_os_str().is_empty()) {
@@ -294,6 +314,37 @@ fn run_inner(args: RenderArgs) -> Result<()> {
         started.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+/// One frame: a scene for our ray caster, or a picture a Gymnasium env drew.
+enum Frame {
+    Scene(Scene),
+    Picture(Picture),
+}
+
+/// `p` scaled (nearest pixel) to fit `w` × `h` with its proportions kept, centred on the dark
+/// gap colour of the strips.
+fn fit(p: &Picture, w: usize, h: usize) -> Vec<u8> {
+    let mut out = vec![40u8; w * h * 3];
+    if p.width == 0 || p.height == 0 {
+        return out;
+    }
+    let scale = (w as f64 / p.width as f64).min(h as f64 / p.height as f64);
+    let (sw, sh) = (
+        ((p.width as f64 * scale).round() as usize).clamp(1, w),
+        ((p.height as f64 * scale).round() as usize).clamp(1, h),
+    );
+    let (x0, y0) = ((w - sw) / 2, (h - sh) / 2);
+    for y in 0..sh {
+        let py = (y * p.height / sh).min(p.height - 1);
+        for x in 0..sw {
+            let px = (x * p.width / sw).min(p.width - 1);
+            let src = 3 * (py * p.width + px);
+            let dst = 3 * ((y0 + y) * w + x0 + x);
+            out[dst..dst + 3].copy_from_slice(&p.rgb[src..src + 3]);
+        }
+    }
+    out
 }
 
 fn write_gif(out: &Path, w: usize, h: usize, frames: &[Vec<u8>], delay_cs: u16) -> Result<()> {
@@ -353,5 +404,25 @@ mod tests {
         let toml = parse_env_options("g = 12.0").unwrap();
         assert_eq!(json, toml);
         assert!(parse_env_options("g = = 1").is_err());
+    }
+
+    #[test]
+    fn a_picture_of_another_size_is_scaled_to_fit_and_centred() {
+        // 2 × 1: red, blue. Into 8 × 8: 8 × 4 in the middle rows, the rest the gap colour.
+        let p = Picture {
+            width: 2,
+            height: 1,
+            rgb: vec![255, 0, 0, 0, 0, 255],
+        };
+        let out = fit(&p, 8, 8);
+        let px = |x: usize, y: usize| &out[3 * (y * 8 + x)..3 * (y * 8 + x) + 3];
+        assert_eq!(px(0, 0), [40, 40, 40]);
+        assert_eq!(px(0, 2), [255, 0, 0]);
+        assert_eq!(px(3, 5), [255, 0, 0]);
+        assert_eq!(px(4, 2), [0, 0, 255]);
+        assert_eq!(px(7, 5), [0, 0, 255]);
+        assert_eq!(px(7, 6), [40, 40, 40]);
+        // The same size is copied as it is.
+        assert_eq!(fit(&p, 2, 1), p.rgb);
     }
 }

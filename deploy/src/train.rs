@@ -47,8 +47,22 @@ pub struct TrainArgs {
     #[arg(long, default_value_t = 20)]
     max_restarts: usize,
     /// The window (seconds) in which --max-restarts counts a worker's deaths.
-    #[arg(long, default_value_t = 600.0)]
+    #[arg(long, default_value_t = 600.0, value_parser = parse_restart_window, allow_hyphen_values = true)]
     restart_window: f64,
+}
+
+/// Longest `--restart-window`: a year, far beyond any run, and far inside what a `Duration` holds.
+const MAX_RESTART_WINDOW: f64 = 365.0 * 24.0 * 3600.0;
+
+/// `--restart-window`: seconds, finite and positive (a window of 0 or NaN would never count two
+/// deaths together, so `--max-restarts` would never trigger).
+fn parse_restart_window(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v > 0.0 && v <= MAX_RESTART_WINDOW => Ok(v),
+        _ => Err(format!(
+            "must be a number of seconds above 0 and at most {MAX_RESTART_WINDOW} (a year)"
+        )),
+    }
 }
 
 /// A worker that dies again soon after its start waits this long before the next, doubling up to
@@ -127,7 +141,9 @@ enum Event {
 
 pub fn run(mut args: TrainArgs) -> Result<i32> {
     if let Some(r) = &args.resume {
-        args.resume = Some(resolve_resume(r)?);
+        let checkpoint = resolve_resume(r)?;
+        warn_missing_replay(&checkpoint);
+        args.resume = Some(checkpoint);
     }
     // A resumed run keeps the checkpoint's config unless a --config is given; --set applies on top.
     let text = match (&args.config, &args.resume) {
@@ -178,9 +194,18 @@ pub fn run(mut args: TrainArgs) -> Result<i32> {
         .with_context(|| format!("creating run directory {}", run_dir.display()))?;
     // One launcher per run directory; the lock goes with the process, so a dead holder's is free.
     let _lock = lock_run_dir(&run_dir)?;
+    if args.resume.is_none() && holds_run(&run_dir) && !has_checkpoint(&run_dir) {
+        // A run stopped (killed, diverged) before its first checkpoint left metrics and logs but
+        // nothing to resume: it starts anew rather than leaving the directory stuck.
+        start_anew(&run_dir)?;
+        say!(
+            "selkd: {} holds a run that stopped before its first checkpoint (nothing to resume); starting it anew (its metrics.csv and tb/ are replaced, its logs are appended to)",
+            run_dir.display()
+        );
+    }
     if args.resume.is_none() && holds_run(&run_dir) {
         bail!(
-            "run directory {} already holds a run; continue it with --resume {}/checkpoints/final (or the one `checkpoints/latest` names), or choose another --run-dir",
+            "run directory {} already holds a run; continue it with --resume {} (from its latest complete checkpoint), or choose another --run-dir",
             run_dir.display(),
             run_dir.display()
         );
@@ -234,6 +259,33 @@ fn holds_run(dir: &Path) -> bool {
         })
 }
 
+/// Whether `dir/checkpoints` holds a checkpoint directory (complete or not: a damaged one is
+/// reported by `--resume`, never silently overwritten).
+fn has_checkpoint(dir: &Path) -> bool {
+    std::fs::read_dir(dir.join("checkpoints")).is_ok_and(|entries| {
+        entries
+            .filter_map(|e| e.ok())
+            .any(|e| e.path().join("state.json").exists())
+    })
+}
+
+/// Clears what a run without a checkpoint left, so a new one starts in its directory.
+fn start_anew(dir: &Path) -> Result<()> {
+    for f in ["metrics.csv", "logs/progress.jsonl"] {
+        let p = dir.join(f);
+        if p.exists() {
+            std::fs::remove_file(&p).with_context(|| format!("removing {}", p.display()))?;
+        }
+    }
+    for d in ["tb", "checkpoints"] {
+        let p = dir.join(d);
+        if p.exists() {
+            std::fs::remove_dir_all(&p).with_context(|| format!("removing {}", p.display()))?;
+        }
+    }
+    Ok(())
+}
+
 /// After a run that failed before it held anything: drop the empty `checkpoints/` it left, and
 /// the whole directory if this start created it and no log says anything (a directory that
 /// does hold a log keeps it: the failure message points there).
@@ -252,29 +304,89 @@ fn tidy_failed_start(run_dir: &Path, created: bool) {
     }
 }
 
-/// The checkpoint `--resume` names: a checkpoint directory, or a run directory (its latest one).
+/// The checkpoint `--resume` names: a checkpoint directory, or a run directory (the one its
+/// `checkpoints/latest` names, else its newest complete one). Errors are one line naming the file.
 fn resolve_resume(r: &Path) -> Result<PathBuf> {
+    use selkd_learner::checkpoint::check_complete;
     if r.join("state.json").exists() {
+        check_complete(r).map_err(|why| anyhow::anyhow!("--resume {}: {why}", r.display()))?;
         return Ok(r.to_path_buf());
     }
-    let latest = r.join("checkpoints").join("latest");
-    if let Ok(name) = std::fs::read_to_string(&latest) {
-        let dir = r.join("checkpoints").join(name.trim());
-        if dir.join("state.json").exists() {
-            return Ok(dir);
+    let checkpoints = r.join("checkpoints");
+    let latest = checkpoints.join("latest");
+    let reason = match std::fs::read_to_string(&latest) {
+        Ok(name) => {
+            let dir = checkpoints.join(name.trim());
+            match check_complete(&dir) {
+                Ok(_) => return Ok(dir),
+                Err(why) => format!(
+                    "{} names `{}`, which is unusable: {why}",
+                    latest.display(),
+                    name.trim()
+                ),
+            }
         }
+        Err(_) => format!("{} is missing", latest.display()),
+    };
+    if let Some((dir, inserted)) = newest_complete(&checkpoints) {
+        say!(
+            "selkd: {reason}; resuming from the newest complete checkpoint, {} ({inserted} env steps)",
+            dir.display()
+        );
+        return Ok(dir);
+    }
+    if has_checkpoint(r) {
         bail!(
-            "--resume {}: {} names checkpoint `{}`, which is missing; pick one under {}",
+            "--resume {}: {reason}, and no checkpoint under {} is complete",
             r.display(),
-            latest.display(),
-            name.trim(),
-            r.join("checkpoints").display()
+            checkpoints.display()
+        );
+    }
+    if r.join("config.toml").exists() {
+        bail!(
+            "--resume {}: this run stopped before its first checkpoint, so there is nothing to resume; start it anew with `selkd train --config {} --run-dir {}`",
+            r.display(),
+            r.join("config.toml").display(),
+            r.display()
         );
     }
     bail!(
         "--resume {}: neither a checkpoint directory (no state.json) nor a run directory with checkpoints; pick RUN or one under RUN/checkpoints/",
         r.display()
     )
+}
+
+/// The complete checkpoint under `checkpoints` with the most env steps (`final` on a tie), and
+/// its env steps. Temporary directories (`NAME.partial`, `NAME.old`) are never chosen.
+fn newest_complete(checkpoints: &Path) -> Option<(PathBuf, u64)> {
+    std::fs::read_dir(checkpoints)
+        .ok()?
+        .filter_map(|e| e.ok())
+        .map(|e| e.path())
+        .filter(|p| p.is_dir() && p.extension().is_none())
+        .filter_map(|p| {
+            let state = selkd_learner::checkpoint::check_complete(&p).ok()?;
+            let is_final = p.file_name().is_some_and(|n| n == "final");
+            Some((state.inserted, is_final, p))
+        })
+        .max_by_key(|(inserted, is_final, _)| (*inserted, *is_final))
+        .map(|(inserted, _, p)| (p, inserted))
+}
+
+/// A checkpoint of a run that keeps its replay buffer, whose `replay.safetensors` is gone: the
+/// learner starts with an empty buffer, which the user should hear of here, not in learner.log.
+fn warn_missing_replay(checkpoint: &Path) {
+    let Ok(state) = selkd_learner::checkpoint::check_complete(checkpoint) else {
+        return;
+    };
+    let replay = checkpoint.join("replay.safetensors");
+    if state.config.run.checkpoint_replay && !replay.exists() {
+        say!(
+            "selkd: warning: {} is missing although the run keeps its replay buffer (run.checkpoint_replay = true); it resumes with an empty buffer and trains again once a warm-up's worth of new transitions ({}) refill it",
+            replay.display(),
+            state.config.algo.warmup_steps
+        );
+    }
 }
 
 /// Children die with the launcher, even when it is SIGKILLed: an orphaned learner would go on
@@ -442,7 +554,7 @@ async fn supervise(
     let mut slots = (0..k)
         .map(|w| spawn_worker(worker_bin, run_dir, run_id, cfg, w, 0, &tx).map(Slot::new))
         .collect::<Result<Vec<Slot>>>()?;
-    let window = Duration::from_secs_f64(args.restart_window.max(0.0));
+    let window = Duration::from_secs_f64(args.restart_window); // bounded by its parser
     let tty = std::io::stderr().is_terminal();
     let started = Instant::now();
     let mut last_line = Instant::now() - Duration::from_secs(60);
@@ -481,7 +593,10 @@ async fn supervise(
                         continue; // the learner told it to stop
                     }
                     if code == Some(selkd_protocol::EXIT_CANNOT_JOIN) {
-                        failure = Some(format!("worker {worker} cannot join the run; see {}", run_dir.join("logs").join(format!("worker-{worker}.log")).display()));
+                        let log = run_dir.join("logs").join(format!("worker-{worker}.log"));
+                        // Its own one-line reason, as the worker wrote it last.
+                        let why = std::fs::read_to_string(&log).ok().and_then(|t| t.lines().rev().find(|l| l.contains(": error: ")).map(|l| l.split_once(": error: ").map_or(l, |(_, w)| w).to_string()));
+                        failure = Some(format!("worker {worker} cannot join the run{}; see {}", why.map_or(String::new(), |w| format!(": {w}")), log.display()));
                         stopping = true;
                         unsafe { libc::kill(learner_pid, libc::SIGTERM) };
                         continue;
@@ -552,12 +667,14 @@ async fn supervise(
             );
             Ok(0)
         }
-        (Some(130), None) => {
+        // The learner exits 128 + the signal that stopped it: selkd's own, else the one it got
+        // directly (`kill` of the learner alone), so SIGTERM reads as 143, not as Ctrl-C.
+        (Some(code @ (129 | 130 | 143)), None) => {
             say!(
                 "selkd: stopped; checkpoint at {}",
                 run_dir.join("checkpoints").join("final").display()
             );
-            Ok(128 + stopped_by.unwrap_or(libc::SIGINT))
+            Ok(128 + stopped_by.unwrap_or(code - 128))
         }
         _ => {
             // The learner's own error line, else its last ERROR, else its last line.

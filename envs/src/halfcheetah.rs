@@ -73,6 +73,12 @@ const CONTROL_DT: f32 = 0.05;
 /// seed. Training wall-clock is set by the learner (an
 /// update costs some 60× an env step here), not by the env, so 5×1 stays the default;
 /// `[env_options] substeps = 2` gives the fast setting.
+///
+/// Not converged (issue 32, `docs/results/fidelity.md`, `tests::fidelity`): the sine gait goes
+/// 530 m at 5×1 and 35 m at 50×1; 2×2, 5×2 and 10×1 are as far off. Contact softness (8–60 Hz),
+/// joint-limit softness or no limits at all, contact recycling, prediction distance and the
+/// friction model were each tried and none closes the gap; where the error is remains to be
+/// found (a guess: the articulated dynamics over 10 ms).
 pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
     substeps: 5,
@@ -468,5 +474,25 @@ mod tests {
             .map(|s| episode(&mut reference, s, |_, t| gait(t)))
             .collect();
         println!("50x1 reference: gait {gait:?} m");
+    }
+
+    /// Issue 32's reward band: a uniform random policy's and a standing (zero-action) policy's
+    /// mean returns over seeds 0–9. The bands are our own measurement at [`SIM`] (random −538.5, standing 0.6),
+    /// widened by about half and 20, not a MuJoCo measurement: a physics or reward change that moves
+    /// either far (a reward paying for an exploit, standing that no longer stands) fails here.
+    #[test]
+    fn random_and_standing_returns_stay_in_band() {
+        let mut env = HalfCheetah::new();
+        let (random, standing) =
+            crate::testing::random_and_standing_returns::<_, NA>(&mut env, 0..10);
+        println!("halfcheetah: random {random:.1}, standing {standing:.1}");
+        assert!(
+            (-810.0..-270.0).contains(&random),
+            "random-policy mean return {random}"
+        );
+        assert!(
+            (-20.0..20.0).contains(&standing),
+            "standing mean return {standing}"
+        );
     }
 }

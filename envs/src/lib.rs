@@ -15,6 +15,27 @@
 //! [`physics`] holds the rapier helpers that the locomotion robots share: world setup, planar
 //! root, hinge chains, joint torques and state, and [`physics::Robot`], a robot in its own world
 //! with its physics settings (which a run may override: [`physics::PhysicsOptions`]).
+//!
+//! One episode, as a worker plays it (`make`, `reset` with a seed, `step` until it ends):
+//!
+//! ```no_run
+//! let mut env = selkd_envs::make("pendulum")?; // or "Pendulum-v1", "hopper", "fpc-assembly", ...
+//! let spec = env.spec().clone(); // obs_dim 3, act_dim 1, max_episode_steps 200
+//! let mut obs = env.reset(Some(0)); // the same seed gives the same episode, bit for bit
+//! let mut episode_return = 0.0;
+//! loop {
+//!     let action = vec![0.5f32; spec.act_dim]; // always in [-1, 1]; the env scales it
+//!     let step = env.step(&action);
+//!     episode_return += step.reward;
+//!     // `terminated`: a real terminal state (no bootstrapping); `truncated`: the time limit.
+//!     if step.terminated || step.truncated {
+//!         break;
+//!     }
+//!     obs = step.obs;
+//! }
+//! println!("return {episode_return}, last observation {obs:?}");
+//! # Ok::<(), selkd_envs::EnvError>(())
+//! ```
 
 pub mod ant;
 #[cfg(test)]
@@ -52,8 +73,17 @@ pub struct EnvSpec {
     /// Gymnasium's own version of the task (`Pendulum-v1`, `Hopper-v5`, ...) takes
     /// `gymnasium_action_scale · a` for our action `a`: its action space is ±this (the
     /// pendulum's 2 N·m, the humanoid's 0.4 ctrl range; 1 for the other robots, and for
-    /// `fpc-assembly`, which has no counterpart).
+    /// `fpc-assembly`, which has no counterpart). A `gymnasium:<id>` env whose action Box is not
+    /// ±c in every dimension has no such scale: NaN (`selkd export` refuses it).
     pub gymnasium_action_scale: f32,
+}
+
+/// An RGB picture, row by row from the top, 3 bytes a pixel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Picture {
+    pub width: usize,
+    pub height: usize,
+    pub rgb: Vec<u8>,
 }
 
 /// The result of one `step`.
@@ -100,6 +130,18 @@ pub trait Env: Send {
     fn control_dt(&self) -> Option<f64> {
         None
     }
+    /// A picture the env draws itself, for an env with no [`Env::scene`] (a Gymnasium env made
+    /// with `render_mode="rgb_array"`): `None` if it cannot draw, else the picture or why
+    /// drawing failed.
+    fn picture(&self) -> Option<Result<Picture, String>> {
+        None
+    }
+    /// Why the env cannot go on, once it has failed (an exception inside a Gymnasium env's
+    /// `reset` or `step`: that step came back terminated, with a zero observation). Our own
+    /// envs never fail. A caller checks it after each `reset` and `step`.
+    fn failure(&self) -> Option<String> {
+        None
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -108,6 +150,11 @@ pub enum EnvError {
     Unknown { name: String, known: String },
     #[error("env_options for `{env}`: {message}")]
     Options { env: String, message: String },
+    #[error("`{name}`: this program cannot step Gymnasium envs (only selkd, learner and actor-worker can)")]
+    Family { name: String },
+    /// The env failed (a Python exception in Gymnasium's `make`, `reset` or `step`).
+    #[error("{0}")]
+    Failed(String),
 }
 
 /// An env's options as a TOML table (the run config's `[env_options]`); each env reads them
@@ -201,9 +248,55 @@ pub fn make(name: &str) -> Result<Box<dyn Env>, EnvError> {
     make_with(name, &EnvOptions::new())
 }
 
+/// Envs from outside this crate, by name prefix (`gymnasium:` for Gymnasium's registry): a
+/// process that can step them registers their constructor once at start-up
+/// ([`register_family`]); this crate only routes names to it.
+static FAMILIES: std::sync::Mutex<Vec<(&'static str, ExternalConstructor)>> =
+    std::sync::Mutex::new(Vec::new());
+
+/// Builds an env of a family from its full name (`gymnasium:Hopper-v5`) and options.
+pub type ExternalConstructor = fn(&str, &EnvOptions) -> Result<Box<dyn Env>, EnvError>;
+
+/// Routes every name that starts with `prefix` (e.g. `"gymnasium:"`) to `make`; registering a
+/// prefix again replaces its constructor.
+pub fn register_family(prefix: &'static str, make: ExternalConstructor) {
+    let mut families = FAMILIES.lock().unwrap_or_else(|e| e.into_inner());
+    families.retain(|(p, _)| *p != prefix);
+    families.push((prefix, make));
+}
+
 /// Builds an env by registry name with `options` (checked: unknown keys and bad values are
 /// errors that name them).
+///
+/// ```no_run
+/// // The run config's `[env_options]` table: Pendulum on the Moon.
+/// let options: selkd_envs::EnvOptions = toml::from_str("g = 1.62")?;
+/// let mut env = selkd_envs::make_with("pendulum", &options)?;
+/// let obs = env.reset(Some(7));
+/// let step = env.step(&[-1.0]);
+/// assert_eq!(obs.len(), step.obs.len());
+/// // A learner and its workers compare this to check that they run the same variant.
+/// let _fingerprint = selkd_envs::options_fingerprint(&options);
+/// // Unknown keys are refused, naming them.
+/// let bad: selkd_envs::EnvOptions = toml::from_str("gravity = 1.62")?;
+/// assert!(selkd_envs::make_with("pendulum", &bad).is_err());
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 pub fn make_with(name: &str, options: &EnvOptions) -> Result<Box<dyn Env>, EnvError> {
+    let family = FAMILIES
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .iter()
+        .find(|(prefix, _)| name.starts_with(prefix))
+        .map(|(_, make)| *make);
+    if let Some(make) = family {
+        return make(name, options);
+    }
+    if name.starts_with("gymnasium:") {
+        return Err(EnvError::Family {
+            name: name.to_string(),
+        });
+    }
     let key = canonical(name);
     let make = REGISTRY
         .iter()

@@ -29,3 +29,51 @@ pub(crate) fn sinking(robot: &crate::physics::Robot) -> f32 {
     }
     deepest
 }
+
+/// One scripted episode's summary.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Ep {
+    pub ret: f64,
+}
+
+/// Runs one episode of `policy` (obs, step → action) from `seed`.
+pub(crate) fn rollout<E: crate::Env>(
+    env: &mut E,
+    seed: u64,
+    mut policy: impl FnMut(&[f32], usize) -> Vec<f32>,
+) -> Ep {
+    let mut obs = env.reset(Some(seed));
+    let mut ret = 0.0;
+    for t in 0.. {
+        let s = env.step(&policy(&obs, t));
+        ret += s.reward;
+        obs = s.obs;
+        if s.terminated || s.truncated {
+            return Ep { ret };
+        }
+    }
+    unreachable!()
+}
+
+/// Mean of `f` over episodes.
+pub(crate) fn mean(eps: &[Ep], f: impl Fn(&Ep) -> f64) -> f64 {
+    eps.iter().map(f).sum::<f64>() / eps.len() as f64
+}
+
+
+/// Mean return of a uniform random policy over `seeds` (actions from `seed + 1000`) and of a
+/// standing (zero-action) policy over the same seeds: the reward bands of issue 32.
+pub(crate) fn random_and_standing_returns<E: crate::Env, const N: usize>(
+    env: &mut E,
+    seeds: std::ops::Range<u64>,
+) -> (f64, f64) {
+    let mut random = vec![];
+    let mut standing = vec![];
+    for seed in seeds {
+        let acts = random_actions::<N>(seed + 1000, 1000);
+        random.push(rollout(env, seed, |_, t| acts[t].to_vec()));
+        standing.push(rollout(env, seed, |_, _| vec![0.0; N]));
+    }
+    (mean(&random, |e| e.ret), mean(&standing, |e| e.ret))
+}
+

@@ -171,6 +171,106 @@ fn tensors(s: &Selkd) -> Vec<(String, &Tensor)> {
     out
 }
 
+/// Why a checkpoint was not written: the training state holds a non-finite value.
+#[derive(Debug)]
+pub struct NonFinite(pub String);
+
+impl std::fmt::Display for NonFinite {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "training diverged: tensor `{}` holds non-finite values, so no checkpoint is written from this state; nothing after the last checkpoint is kept (lower algo.lr, or check the env's rewards)", self.0)
+    }
+}
+
+impl std::error::Error for NonFinite {}
+
+/// Checks that `dir` is a complete checkpoint without reading its tensors: `state.json` parses,
+/// and `model.safetensors` (and `replay.safetensors`, when present) hold every byte their header
+/// promises. Returns its `state.json`; the error is one line naming the file and what is wrong.
+pub fn check_complete(dir: &Path) -> std::result::Result<TrainingState, String> {
+    let state = dir.join("state.json");
+    let text = match std::fs::read_to_string(&state) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(format!(
+                "{} is not a checkpoint directory: it has no state.json",
+                dir.display()
+            ))
+        }
+        Err(e) => return Err(format!("{}: cannot be read ({e})", state.display())),
+    };
+    // Truncated, damaged, or written by a version whose state this one cannot read.
+    let state: TrainingState = serde_json::from_str(&text).map_err(|e| {
+        format!(
+            "{}: not a state.json this selkd can read ({e})",
+            dir.join("state.json").display()
+        )
+    })?;
+    check_safetensors(&dir.join("model.safetensors"))?;
+    let replay = dir.join("replay.safetensors");
+    if replay.exists() {
+        check_safetensors(&replay)?;
+    }
+    Ok(state)
+}
+
+/// A safetensors file: an 8-byte little-endian header length, the JSON header, then the data,
+/// whose extent the header's `data_offsets` give.
+fn check_safetensors(path: &Path) -> std::result::Result<(), String> {
+    use std::io::Read;
+    let shown = path.display();
+    let mut f = match std::fs::File::open(path) {
+        Ok(f) => f,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(format!("{shown} is missing"))
+        }
+        Err(e) => return Err(format!("{shown}: cannot be read ({e})")),
+    };
+    let len = f
+        .metadata()
+        .map_err(|e| format!("{shown}: cannot be read ({e})"))?
+        .len();
+    let damaged = |what: &str| format!("{shown} is damaged: {what}");
+    let mut n = [0u8; 8];
+    if f.read_exact(&mut n).is_err() {
+        return Err(damaged(&format!("{len} bytes, too short for a header")));
+    }
+    let header_len = u64::from_le_bytes(n);
+    if header_len > len - 8 {
+        return Err(damaged(&format!(
+            "truncated: {len} bytes, its header alone needs {}",
+            header_len.saturating_add(8)
+        )));
+    }
+    let mut header = vec![0u8; header_len as usize];
+    f.read_exact(&mut header)
+        .map_err(|e| format!("{shown}: cannot be read ({e})"))?;
+    let header: serde_json::Map<String, serde_json::Value> =
+        serde_json::from_slice(&header).map_err(|_| damaged("its header is not valid"))?;
+    let data_end = header
+        .iter()
+        .filter(|(k, _)| *k != "__metadata__")
+        .filter_map(|(_, v)| v["data_offsets"][1].as_u64())
+        .max()
+        .unwrap_or(0);
+    let have = len - 8 - header_len;
+    if data_end > have {
+        return Err(damaged(&format!(
+            "truncated: {len} bytes, its header promises {}",
+            8 + header_len + data_end
+        )));
+    }
+    Ok(())
+}
+
+/// A safetensors file's tensors, with a one-line error naming the file.
+fn read_tensors(path: &Path) -> Result<HashMap<String, Tensor>> {
+    check_safetensors(path).map_err(anyhow::Error::msg)?;
+    Ok(Tensor::read_safetensors(path)
+        .map_err(|e| anyhow::anyhow!("{} cannot be loaded: {e}", path.display()))?
+        .into_iter()
+        .collect())
+}
+
 /// Writes a checkpoint to `dir` (via a temporary directory, so a crash never leaves half of one).
 pub fn save(
     dir: &Path,
@@ -199,11 +299,18 @@ fn write_into(
     replay: Option<(&mut ReplayBuffer, Option<&mut ReplayBuffer>)>,
     state: &TrainingState,
 ) -> Result<()> {
-    std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
     let named: Vec<(String, Tensor)> = tensors(selkd)
         .into_iter()
         .map(|(n, t)| (n, t.detach().to_device(tch::Device::Cpu).contiguous()))
         .collect();
+    // A state with an infinite or NaN value (an Adam moment that overflowed while the losses
+    // still looked finite) is never written: resuming from it only diverges again.
+    for (name, t) in &named {
+        if t.isfinite().all().int64_value(&[]) == 0 {
+            return Err(NonFinite(name.clone()).into());
+        }
+    }
+    std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
     Tensor::write_safetensors(&named, tmp.join("model.safetensors"))
         .context("writing model.safetensors")?;
     if let Some((replay, validation)) = replay {
@@ -282,19 +389,8 @@ pub fn load(
     replay: &mut ReplayBuffer,
     validation: Option<&mut ReplayBuffer>,
 ) -> Result<TrainingState> {
-    let state: TrainingState = serde_json::from_str(
-        &std::fs::read_to_string(dir.join("state.json")).with_context(|| {
-            format!(
-                "{} is not a checkpoint directory (no state.json)",
-                dir.display()
-            )
-        })?,
-    )
-    .context("reading state.json")?;
-    let stored: HashMap<String, Tensor> = Tensor::read_safetensors(dir.join("model.safetensors"))
-        .context("reading model.safetensors")?
-        .into_iter()
-        .collect();
+    let state = check_complete(dir).map_err(anyhow::Error::msg)?;
+    let stored = read_tensors(&dir.join("model.safetensors"))?;
     tch::no_grad(|| -> Result<()> {
         for (name, t) in tensors(selkd) {
             let src = stored
@@ -325,10 +421,7 @@ pub fn load(
     selkd.selected = state.selected_variant;
     let replay_file = dir.join("replay.safetensors");
     if replay_file.exists() {
-        let stored: HashMap<String, Tensor> = Tensor::read_safetensors(&replay_file)
-            .context("reading replay.safetensors")?
-            .into_iter()
-            .collect();
+        let stored = read_tensors(&replay_file)?;
         let rows = stored
             .get("rows")
             .context("replay.safetensors lacks its `rows`")?;
@@ -383,10 +476,7 @@ pub fn load_actor(path: &Path, actor: Option<usize>) -> Result<LoadedActor> {
             path.display()
         );
     }
-    let stored: HashMap<String, Tensor> = Tensor::read_safetensors(&model)
-        .with_context(|| format!("reading {}", model.display()))?
-        .into_iter()
-        .collect();
+    let stored = read_tensors(&model)?;
     let mut layers = Vec::new();
     while let (Some(w), Some(b)) = (
         stored.get(&format!("actors.{}.weight", layers.len())),
@@ -441,6 +531,51 @@ pub fn load_actor(path: &Path, actor: Option<usize>) -> Result<LoadedActor> {
 #[cfg(test)]
 mod replace_tests {
     use super::*;
+
+    /// Files made by hand in the safetensors layout: each fault is named in one line.
+    #[test]
+    fn damaged_safetensors_files_are_named_with_what_is_wrong() {
+        let root = std::env::temp_dir().join(format!("selkd-check-st-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(&root).unwrap();
+        let file = |name: &str, header: &[u8], header_len: u64, data: usize| {
+            let p = root.join(name);
+            let mut bytes = header_len.to_le_bytes().to_vec();
+            bytes.extend_from_slice(header);
+            bytes.extend(std::iter::repeat_n(0u8, data));
+            std::fs::write(&p, bytes).unwrap();
+            p
+        };
+        // One f32 tensor of 2 values: 8 data bytes.
+        let header = br#"{"t":{"dtype":"F32","shape":[2],"data_offsets":[0,8]}}"#;
+        let n = header.len() as u64;
+        assert_eq!(check_safetensors(&file("ok", header, n, 8)), Ok(()));
+        let e = check_safetensors(&file("short-data", header, n, 4)).unwrap_err();
+        assert!(
+            e.ends_with(&format!(
+                "short-data is damaged: truncated: {} bytes, its header promises {}",
+                8 + n + 4,
+                8 + n + 8
+            )),
+            "{e}"
+        );
+        let e = check_safetensors(&file("short-header", header, 1000, 0)).unwrap_err();
+        assert!(
+            e.contains("truncated") && e.contains("its header alone needs 1008"),
+            "{e}"
+        );
+        let e = check_safetensors(&file("garbage", b"not json", 8, 0)).unwrap_err();
+        assert!(
+            e.ends_with("garbage is damaged: its header is not valid"),
+            "{e}"
+        );
+        std::fs::write(root.join("tiny"), b"abc").unwrap();
+        let e = check_safetensors(&root.join("tiny")).unwrap_err();
+        assert!(e.contains("3 bytes, too short for a header"), "{e}");
+        let e = check_safetensors(&root.join("absent")).unwrap_err();
+        assert!(e.ends_with("absent is missing"), "{e}");
+        let _ = std::fs::remove_dir_all(&root);
+    }
 
     /// A checkpoint written over an older one replaces it whole, and leaves no temporary
     /// directory behind; `latest` is replaced the same way.

@@ -24,8 +24,15 @@ pub struct RunConfig {
     /// Registry name of the environment.
     pub env: String,
     pub seed: u64,
-    /// Budget: transitions from all actors together.
+    /// Budget: transitions from all actors together. Resolved from `total_rounds` when that is set.
     pub total_env_steps: u64,
+    /// Budget in rounds (Algorithm 1's time-steps: each of the K actors takes one step), 0 = unset.
+    /// When set, `total_env_steps` becomes rounds × K at validation, so everything downstream
+    /// counts env steps as before; kept in the written config so a report can say which unit the
+    /// run's budget was set in. Left out of the TOML when unset, so configs written before it
+    /// existed compare equal to new ones.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub total_rounds: u64,
     pub mode: Mode,
     /// `cpu` or `cuda` (or `cuda:N`), for the learner.
     pub device: String,
@@ -45,6 +52,10 @@ pub struct RunConfig {
     /// Permissions of a run directory this run creates (checkpoints of a private task are
     /// data: by default only the owner may read them).
     pub dir_mode: DirMode,
+}
+
+fn is_zero(v: &u64) -> bool {
+    *v == 0
 }
 
 /// A directory's permission bits, written in a config as an octal string (`"0700"`).
@@ -157,6 +168,10 @@ pub struct AlgoConfig {
     pub subset: usize,
     /// G: critic updates per round (per K transitions).
     pub utd: usize,
+    /// U: updates of every actor (and its temperature) per round. Algorithm 1 has 1, after the
+    /// G critic updates; U > 1 is a departure from it (the ablation that gives SELKD's actors
+    /// REDQ's update count): an actor update follows each of the last U critic updates.
+    pub actor_updates_per_round: usize,
     pub batch_size: usize,
     pub hidden: Vec<usize>,
     pub lr: f64,
@@ -272,6 +287,7 @@ impl Default for RunConfig {
             env: "pendulum".into(),
             seed: 1,
             total_env_steps: 300_000,
+            total_rounds: 0,
             mode: Mode::Sync,
             device: "cpu".into(),
             threads: 0,
@@ -300,6 +316,7 @@ impl Default for AlgoConfig {
             critics: 10,
             subset: 2,
             utd: 20,
+            actor_updates_per_round: 1,
             batch_size: 256,
             hidden: vec![256, 256],
             lr: 3e-4,
@@ -362,11 +379,48 @@ impl Config {
         for o in overrides {
             apply_override(&mut value, o)?;
         }
-        let cfg: Config = toml::Value::Table(value)
+        restate_budget(&mut value, overrides)?;
+        let steps_given = value
+            .get("run")
+            .and_then(|r| r.get("total_env_steps"))
+            .is_some();
+        let mut cfg: Config = toml::Value::Table(value)
             .try_into()
             .map_err(|e: toml::de::Error| ConfigError::Parse(one_line(&e.to_string())))?;
+        cfg.resolve_budget(steps_given)?;
         cfg.validate()?;
         Ok(cfg)
+    }
+
+    /// A budget in rounds becomes `run.total_env_steps` = rounds × K, once, here; a config that
+    /// also gives env steps must agree with it (every run's written config.toml states both).
+    fn resolve_budget(&mut self, steps_given: bool) -> Result<(), ConfigError> {
+        let (rounds, k) = (self.run.total_rounds, self.algo.actors as u64);
+        if rounds == 0 || k == 0 {
+            return Ok(()); // no rounds budget, or K = 0, which validate() reports
+        }
+        let Some(steps) = rounds.checked_mul(k) else {
+            return Err(ConfigError::Invalid(format!(
+                "run.total_rounds = {rounds} × algo.actors = {k} overflows; choose a smaller budget"
+            )));
+        };
+        if steps_given && self.run.total_env_steps != steps {
+            return Err(ConfigError::Invalid(format!(
+                "run.total_env_steps = {} and run.total_rounds = {rounds} both set the budget and disagree ({rounds} rounds of K = {k} actors are {steps} env steps); set only one",
+                self.run.total_env_steps
+            )));
+        }
+        self.run.total_env_steps = steps;
+        Ok(())
+    }
+
+    /// The unit the budget was set in, for reports: `rounds` or `env steps`.
+    pub fn budget_unit(&self) -> &'static str {
+        if self.run.total_rounds > 0 {
+            "rounds"
+        } else {
+            "env steps"
+        }
     }
 
     pub fn to_toml(&self) -> String {
@@ -377,6 +431,14 @@ impl Config {
     pub fn validate(&self) -> Result<(), ConfigError> {
         let a = &self.algo;
         let bad = |m: String| Err(ConfigError::Invalid(m));
+        if self.run.env.len() > selkd_protocol::NAME_BYTES {
+            return bad(format!(
+                "run.env = \"{}\" is {} bytes; the processes' messages carry at most {}",
+                self.run.env,
+                self.run.env.len(),
+                selkd_protocol::NAME_BYTES
+            ));
+        }
         match self.env_spec() {
             Err(selkd_envs::EnvError::Unknown { .. }) => {
                 return bad(format!(
@@ -408,6 +470,13 @@ impl Config {
             return bad(
                 "algo.utd, algo.batch_size and algo.replay_capacity must be at least 1".into(),
             );
+        }
+        if a.actor_updates_per_round == 0 || a.actor_updates_per_round > a.utd {
+            return bad(format!(
+                "algo.actor_updates_per_round = {} must be between 1 and algo.utd (G = {}): \
+                 an actor update follows a critic update",
+                a.actor_updates_per_round, a.utd
+            ));
         }
         if a.hidden.is_empty()
             || a.hidden.contains(&0)
@@ -520,6 +589,27 @@ impl Config {
         if self.run.total_env_steps == 0 {
             return bad("run.total_env_steps must be at least 1".into());
         }
+        let rounds = self.run.total_rounds;
+        if rounds > 0 {
+            let k = a.actors as u64;
+            if rounds.checked_mul(k) != Some(self.run.total_env_steps) {
+                return bad(format!("run.total_rounds = {rounds} with K = {k} actors is {} env steps, but run.total_env_steps = {}; set only one", rounds.saturating_mul(k), self.run.total_env_steps));
+            }
+            // A budget in rounds says "this much learner work"; one spent inside the warm-up
+            // would do none, which is never what a rounds budget means.
+            let warmup_rounds = self.warmup_per_actor();
+            if rounds < warmup_rounds {
+                return bad(format!("run.total_rounds = {rounds} ends within the warm-up (algo.warmup_steps = {} env steps are {warmup_rounds} rounds of K = {k} actors), so no critic update would happen; raise run.total_rounds to at least {warmup_rounds} or lower algo.warmup_steps", a.warmup_steps));
+            }
+        }
+        // Each actor plays its episodes every epoch; beyond this an epoch's evaluation outlasts
+        // any training it measures (1e9 held the run in evaluation for good).
+        if self.eval.episodes > MAX_EVAL_EPISODES {
+            return bad(format!(
+                "eval.episodes = {} is more than {MAX_EVAL_EPISODES} evaluation episodes per actor per epoch; lower it",
+                self.eval.episodes
+            ));
+        }
         if self.eval.epoch_env_steps == 0 || self.eval.episodes == 0 || self.eval.score_window == 0
         {
             return bad(
@@ -558,7 +648,89 @@ impl Config {
         if self.asynchronous.max_policy_lag == 0 {
             return bad("async.max_policy_lag must be at least 1".into());
         }
+        // Last, on a config that is otherwise sound: a run that cannot fit is refused here, not by
+        // an allocation failing (a libtorch abort) once the processes are up.
+        if dev == "cpu" {
+            if let Some(physical) = physical_memory() {
+                self.check_memory(physical)?;
+            }
+        }
         Ok(())
+    }
+
+    /// A lower bound of the bytes the learner holds for this config: the replay buffer (and
+    /// AVTD's validation rows), and per parameter of the K actors and N critics its value, its
+    /// gradient and Adam's two moments, plus the target critics (and TD3's target actors).
+    /// Activations and libtorch's workspace come on top, so a config above the machine's
+    /// memory surely fails.
+    pub fn memory_estimate(&self) -> Result<MemoryEstimate, ConfigError> {
+        let spec = self
+            .env_spec()
+            .map_err(|e| ConfigError::Invalid(one_line(&e.to_string())))?;
+        let a = &self.algo;
+        let (obs, act) = (spec.obs_dim as u128, spec.act_dim as u128);
+        let variants = a.variants.len().max(1) as u128;
+        // Weights and biases of one member of a stacked ensemble with these layer sizes.
+        let params = |input: u128, output: u128| -> u128 {
+            let dims: Vec<u128> = std::iter::once(input)
+                .chain(a.hidden.iter().map(|&h| h as u128))
+                .chain(std::iter::once(output))
+                .collect();
+            dims.windows(2)
+                .map(|w| w[0].saturating_mul(w[1]).saturating_add(w[1]))
+                .fold(0u128, u128::saturating_add)
+        };
+        let actors = (a.actors as u128) * variants;
+        let critics = (a.critics as u128) * variants;
+        // value + gradient + Adam's m and v; targets are one more copy.
+        let actor_copies = if a.backbone == Backbone::Td3 { 5 } else { 4 };
+        let actor_floats = params(obs, 2 * act)
+            .saturating_mul(actors)
+            .saturating_mul(actor_copies)
+            // log α per actor, with its gradient and moments
+            .saturating_add(4 * actors);
+        let critic_floats = params(obs + act, 1)
+            .saturating_mul(critics)
+            .saturating_mul(5);
+        let row = 2 * obs + act + 2;
+        let mut rows = a.replay_capacity as u128;
+        if !a.variants.is_empty() {
+            rows += (a.replay_capacity as u128 / a.validation_every.max(1) as u128).max(1);
+        }
+        let to_bytes = |floats: u128| floats.saturating_mul(4).min(u64::MAX as u128) as u64;
+        Ok(MemoryEstimate {
+            replay: to_bytes(rows.saturating_mul(row)),
+            networks: to_bytes(actor_floats.saturating_add(critic_floats)),
+        })
+    }
+
+    /// Refuses a config whose [`Self::memory_estimate`] exceeds `available` bytes, naming the key
+    /// that takes the most.
+    pub fn check_memory(&self, available: u64) -> Result<(), ConfigError> {
+        let m = self.memory_estimate()?;
+        if m.total() <= available {
+            return Ok(());
+        }
+        let what = if m.replay >= m.networks {
+            format!(
+                "algo.replay_capacity = {} takes {} of it",
+                self.algo.replay_capacity,
+                bytes(m.replay)
+            )
+        } else {
+            format!(
+                "the networks (algo.hidden = {:?}, algo.actors = {}, algo.critics = {}) with their gradients and Adam state take {}",
+                self.algo.hidden,
+                self.algo.actors,
+                self.algo.critics,
+                bytes(m.networks)
+            )
+        };
+        Err(ConfigError::Invalid(format!(
+            "this run needs at least {} of memory, more than this machine's {}: {what}; lower it",
+            bytes(m.total()),
+            bytes(available)
+        )))
     }
 
     pub fn warmup_per_actor(&self) -> u64 {
@@ -569,12 +741,15 @@ impl Config {
         self.run.total_env_steps.div_ceil(self.algo.actors as u64)
     }
 
-    /// The critic updates a run makes in its budget: G per round, a round per env step of each
-    /// actor past the warm-up.
+    /// The critic updates a run makes in its budget: G per round, from the round whose
+    /// transitions complete the warm-up (the learner's `RateLimiter::rounds_due`: one round when
+    /// the warm-up's last transition is stored, then one per K more) to the budget's last.
     pub fn critic_updates_in_budget(&self) -> u64 {
-        self.steps_per_actor()
-            .saturating_sub(self.warmup_per_actor())
-            * self.algo.utd as u64
+        let (rounds, warmup) = (self.steps_per_actor(), self.warmup_per_actor());
+        if rounds < warmup {
+            return 0;
+        }
+        (rounds - warmup + 1) * self.algo.utd as u64
     }
 
     /// The spec of `run.env` built with `[env_options]` (options may change its sizes).
@@ -588,8 +763,85 @@ impl Config {
     }
 }
 
+/// Most evaluation episodes per actor per epoch (`eval.episodes`).
+pub const MAX_EVAL_EPISODES: usize = 1000;
+
+/// What [`Config::memory_estimate`] counts, in bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MemoryEstimate {
+    pub replay: u64,
+    pub networks: u64,
+}
+
+impl MemoryEstimate {
+    pub fn total(&self) -> u64 {
+        self.replay.saturating_add(self.networks)
+    }
+}
+
+/// This machine's physical memory (`MemTotal` of /proc/meminfo), if it can be read. Physical, not
+/// what is free now: a run that fits the machine may wait for memory others hold, one that does
+/// not fit can never run.
+pub fn physical_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let kb: u64 = text
+        .lines()
+        .find_map(|l| l.strip_prefix("MemTotal:"))?
+        .trim()
+        .strip_suffix("kB")?
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kb.saturating_mul(1024))
+}
+
+/// Bytes for people: `36.0 TB`, `512.0 MB`.
+pub fn bytes(n: u64) -> String {
+    let units = ["B", "kB", "MB", "GB", "TB", "PB", "EB"];
+    let mut v = n as f64;
+    let mut i = 0;
+    while v >= 1000.0 && i + 1 < units.len() {
+        v /= 1000.0;
+        i += 1;
+    }
+    if i == 0 {
+        format!("{n} B")
+    } else {
+        format!("{v:.1} {}", units[i])
+    }
+}
+
 fn one_line(s: &str) -> String {
     s.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+/// An override of one budget key restates the budget: it replaces the other key from the config
+/// file (`--set run.total_rounds=20000` on a config that sets `total_env_steps`, or a raised
+/// `run.total_env_steps` on a resumed rounds run). Overrides that set both are a mistake.
+fn restate_budget(table: &mut toml::Table, overrides: &[String]) -> Result<(), ConfigError> {
+    let set = |key: &str| -> Option<&str> {
+        overrides.iter().rev().find_map(|o| {
+            let (k, v) = o.split_once('=')?;
+            (k.trim() == key).then_some(v.trim())
+        })
+    };
+    let (steps, rounds) = (set("run.total_env_steps"), set("run.total_rounds"));
+    let rounds_unset = rounds.is_some_and(|v| v == "0");
+    let run = table.get_mut("run").and_then(|r| r.as_table_mut());
+    match (steps, rounds, run) {
+        (Some(s), Some(r), _) if !rounds_unset => Err(ConfigError::Invalid(format!(
+            "--set run.total_env_steps={s} and --set run.total_rounds={r} both set the budget; set only one (rounds = env steps / K)"
+        ))),
+        (Some(_), None, Some(run)) => {
+            run.remove("total_rounds");
+            Ok(())
+        }
+        (None, Some(_), Some(run)) if !rounds_unset => {
+            run.remove("total_env_steps");
+            Ok(())
+        }
+        _ => Ok(()),
+    }
 }
 
 /// `section.key=value`; the value is read as TOML (number, bool, array) or else as a string.
@@ -658,6 +910,10 @@ mod tests {
     fn bad_values_get_one_line_errors_naming_the_key() {
         assert!(err("", &["algo.subset=11"]).contains("algo.subset"));
         assert!(err("", &["algo.actors=0"]).contains("algo.actors"));
+        for u in ["0", "21"] {
+            assert!(err("", &[&format!("algo.actor_updates_per_round={u}")])
+                .contains("must be between 1 and algo.utd (G = 20)"));
+        }
         assert!(err("", &["run.env=walker"]).contains("pendulum"));
         assert!(err("", &["algo.batch_size=-3"]).contains("batch_size"));
         assert!(err("[algo]\ncritcs = 3\n", &[]).contains("critcs"));
@@ -775,7 +1031,10 @@ mod tests {
     }
 
     /// Counted by hand: the paper's 300 000 env steps over K = 5 actors are 60 000 rounds, 1 000 of
-    /// them (5 000 env steps) warm-up, × G = 20; a budget inside the warm-up makes none.
+    /// them (5 000 env steps) warm-up; the 1 000th round, whose transitions complete the warm-up,
+    /// trains, and so does every later one: (60 000 − 1 000 + 1) × G = 20. A budget inside the
+    /// warm-up makes none. (The end-to-end test `budgets_in_rounds_and_env_steps_…` checks such a
+    /// count against a real run's metrics.csv.)
     #[test]
     fn the_budget_counts_g_updates_per_round_past_the_warm_up() {
         let budget = |sets: &[&str]| {
@@ -790,8 +1049,8 @@ mod tests {
             "algo.utd=20",
             "algo.warmup_steps=5000",
         ];
-        assert_eq!(budget(&paper), 1_180_000);
-        // K = 3: 12 000 / 3 = 4 000 rounds, 1 500 / 3 = 500 of them warm-up, × 3.
+        assert_eq!(budget(&paper), 1_180_020);
+        // K = 3: 12 000 / 3 = 4 000 rounds, training from round 500 (1 500 / 3): 3 501 × 3.
         assert_eq!(
             budget(&[
                 "run.total_env_steps=12000",
@@ -800,9 +1059,10 @@ mod tests {
                 "algo.warmup_steps=1500",
                 "algo.batch_size=128",
             ]),
-            10_500
+            10_503
         );
-        // Uneven shares round up: 1 001 env steps over 2 actors are 501 each, warm-up 300 → 150.
+        // Uneven shares round up: 1 001 env steps over 2 actors are 501 each, warm-up 300 → 150:
+        // rounds 150 to 501.
         assert_eq!(
             budget(&[
                 "run.total_env_steps=1001",
@@ -810,12 +1070,178 @@ mod tests {
                 "algo.utd=1",
                 "algo.warmup_steps=300",
             ]),
-            351
+            352
         );
         assert_eq!(
             budget(&["run.total_env_steps=4000", "algo.warmup_steps=5000"]),
             0
         );
+    }
+
+    /// Counted by hand: a rounds budget is each actor's step count, so it gives the same critic
+    /// updates as the env-step budget of rounds × K, and K = 1 makes the two units equal.
+    #[test]
+    fn a_budget_in_rounds_is_env_steps_times_k_with_the_same_critic_updates() {
+        let cfg = |sets: &[&str]| {
+            let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+            Config::from_toml_with_overrides("", &sets).unwrap()
+        };
+        // The paper's 60 000 rounds of K = 5: 300 000 env steps; 1 000 rounds of warm-up;
+        // (60 000 − 1 000 + 1) × 20 = 1 180 020, as the env-step budget of 300 000 above.
+        let c = cfg(&[
+            "run.total_rounds=60000",
+            "algo.actors=5",
+            "algo.utd=20",
+            "algo.warmup_steps=5000",
+        ]);
+        assert_eq!(c.run.total_env_steps, 300_000);
+        assert_eq!(c.steps_per_actor(), 60_000);
+        assert_eq!(c.critic_updates_in_budget(), 1_180_020);
+        assert_eq!(c.budget_unit(), "rounds");
+        // K = 3, 4 000 rounds: 12 000 env steps; warm-up 1 500 / 3 = 500 rounds; 3 501 × 3.
+        let c = cfg(&[
+            "run.total_rounds=4000",
+            "algo.actors=3",
+            "algo.utd=3",
+            "algo.warmup_steps=1500",
+            "algo.batch_size=128",
+        ]);
+        assert_eq!(
+            (c.run.total_env_steps, c.critic_updates_in_budget()),
+            (12_000, 10_503)
+        );
+        // K = 2, warm-up 301 env steps rounds up to 151 rounds: (400 − 151 + 1) × 2 = 500.
+        let c = cfg(&[
+            "run.total_rounds=400",
+            "algo.actors=2",
+            "algo.utd=2",
+            "algo.warmup_steps=301",
+        ]);
+        assert_eq!(
+            (c.run.total_env_steps, c.critic_updates_in_budget()),
+            (800, 500)
+        );
+        // K = 1: rounds are env steps; warm-up 5 000: (7 000 − 5 000 + 1) × 20.
+        let c = cfg(&["run.total_rounds=7000", "algo.actors=1", "algo.utd=20"]);
+        assert_eq!(
+            (c.run.total_env_steps, c.critic_updates_in_budget()),
+            (7_000, 40_020)
+        );
+        // The written config states both, reads back equal, and a config without the key
+        // (written before it existed) has no `total_rounds` line at all.
+        let c = cfg(&["run.total_rounds=2000", "algo.actors=5"]);
+        let text = c.to_toml();
+        assert!(
+            text.contains("total_rounds = 2000") && text.contains("total_env_steps = 10000"),
+            "{text}"
+        );
+        assert_eq!(Config::from_toml_with_overrides(&text, &[]).unwrap(), c);
+        assert!(!Config::default().to_toml().contains("total_rounds"));
+        // Resuming it with a raised env-step budget restates the budget in env steps, and the
+        // other way round.
+        let raised =
+            Config::from_toml_with_overrides(&text, &["run.total_env_steps=20000".into()]).unwrap();
+        assert_eq!(
+            (raised.run.total_env_steps, raised.run.total_rounds),
+            (20_000, 0)
+        );
+        let file = "[run]\ntotal_env_steps = 50000\n";
+        let r = Config::from_toml_with_overrides(file, &["run.total_rounds=3000".into()]).unwrap();
+        assert_eq!((r.run.total_env_steps, r.run.total_rounds), (15_000, 3000));
+        // 0 unsets it.
+        let r = Config::from_toml_with_overrides(&text, &["run.total_rounds=0".into()]).unwrap();
+        assert_eq!((r.run.total_env_steps, r.run.total_rounds), (10_000, 0));
+    }
+
+    #[test]
+    fn two_budgets_or_a_rounds_budget_inside_the_warm_up_are_one_line_errors() {
+        let e = err("[run]\ntotal_env_steps = 50000\ntotal_rounds = 2000\n", &[]);
+        assert!(
+            e.contains("run.total_env_steps = 50000")
+                && e.contains("run.total_rounds = 2000")
+                && e.contains("10000 env steps")
+                && e.contains("set only one")
+                && !e.contains('\n'),
+            "{e}"
+        );
+        let e = err("", &["run.total_env_steps=5000", "run.total_rounds=1000"]);
+        assert!(
+            e.contains("run.total_env_steps=5000")
+                && e.contains("run.total_rounds=1000")
+                && !e.contains('\n'),
+            "{e}"
+        );
+        // 5 000 warm-up env steps over K = 5 are 1 000 rounds: 999 rounds do nothing (the
+        // 1 000th, which completes the warm-up, trains).
+        let e = err("", &["run.total_rounds=999", "algo.warmup_steps=5000"]);
+        assert!(
+            e.contains("run.total_rounds = 999")
+                && e.contains("1000 rounds")
+                && e.contains("raise run.total_rounds to at least 1000")
+                && !e.contains('\n'),
+            "{e}"
+        );
+        Config::from_toml_with_overrides(
+            "",
+            &[
+                "run.total_rounds=1000".into(),
+                "algo.warmup_steps=5000".into(),
+            ],
+        )
+        .unwrap();
+        let e = err("", &["run.total_rounds=9223372036854775807"]);
+        assert!(e.contains("overflows"), "{e}");
+    }
+
+    /// Counted by hand for Pendulum (obs 3, act 1), hidden [8], K = 2, N = 3, 100 replay rows:
+    /// an actor is 3·8+8 + 8·2+2 = 50 parameters, ×2 actors ×4 (value, gradient, m, v) = 400,
+    /// plus log α 2×4 = 8; a critic is 4·8+8 + 8·1+1 = 49, ×3 critics ×5 (and the target) = 735;
+    /// a row is 3+1+1+3+1 = 9 floats, ×100 = 900. Floats are 4 bytes.
+    #[test]
+    fn the_memory_estimate_counts_replay_networks_and_adam_state() {
+        let c = Config::from_toml_with_overrides(
+            "",
+            &[
+                "algo.hidden=[8]",
+                "algo.actors=2",
+                "algo.critics=3",
+                "algo.replay_capacity=100",
+                "algo.batch_size=10",
+                "algo.warmup_steps=10",
+            ]
+            .map(String::from),
+        )
+        .unwrap();
+        let m = c.memory_estimate().unwrap();
+        assert_eq!(m.replay, 900 * 4);
+        assert_eq!(m.networks, (400 + 8 + 735) * 4);
+        assert!(c.check_memory(m.total()).is_ok());
+        let e = c.check_memory(m.total() - 1).unwrap_err().to_string();
+        // 4 572 bytes of networks outweigh 3 600 of replay: the networks' keys are named.
+        assert!(
+            e.contains("needs at least 8.2 kB")
+                && e.contains("algo.hidden = [8]")
+                && e.contains("take 4.6 kB"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn configs_the_machine_cannot_hold_are_refused_naming_the_key() {
+        // 1e12 rows of 9 floats: 36 TB of replay.
+        let e = err("", &["algo.replay_capacity=1000000000000"]);
+        assert!(
+            e.contains("algo.replay_capacity = 1000000000000 takes 36.0 TB"),
+            "{e}"
+        );
+        // Ten critics of 65536² weights are 172 GB each with their Adam state.
+        let e = err("", &["algo.hidden=[65536, 65536]"]);
+        assert!(
+            e.contains("algo.hidden = [65536, 65536]") && !e.contains('\n'),
+            "{e}"
+        );
+        let e = err("", &["eval.episodes=1000000000"]);
+        assert!(e.contains("eval.episodes = 1000000000"), "{e}");
     }
 
     #[test]

@@ -12,6 +12,7 @@ pub mod dpp;
 pub mod ensemble;
 pub mod fused;
 pub mod matmul;
+pub mod metrics;
 pub mod optim;
 pub mod ranking;
 pub mod rate_limit;

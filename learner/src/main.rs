@@ -6,7 +6,7 @@ use clap::Parser;
 use selkd_learner::config::Config;
 use selkd_learner::service::{Learner, Outcome};
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 
 #[derive(Parser, Debug)]
@@ -34,18 +34,22 @@ struct Args {
 
 fn main() {
     selkd_learner::restart_with_runtime_settings();
-    // Colour only on a terminal: the launcher sends these logs to files.
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
-        .init();
+    // `gymnasium:` envs step in an embedded Python.
+    selkd_gymnasium::register();
+    selkd_protocol::init_tracing();
     let args = Args::parse();
-    match run(&args) {
+    let signal = Arc::new(AtomicUsize::new(0));
+    match run(&args, &signal) {
         Ok(Outcome::Finished) => {}
-        Ok(Outcome::Interrupted) => std::process::exit(130),
+        // 128 + the signal, as a shell reports a process the signal ended: `selkd train` (and
+        // schedulers) tell a SIGTERM (143) from a Ctrl-C (130).
+        Ok(Outcome::Interrupted) => {
+            let sig = match signal.load(Ordering::SeqCst) {
+                0 => signal_hook::consts::SIGINT as usize,
+                s => s,
+            };
+            std::process::exit(128 + sig as i32)
+        }
         Err(e) => {
             eprintln!("learner: error: {e:#}");
             std::process::exit(1);
@@ -53,7 +57,7 @@ fn main() {
     }
 }
 
-fn run(args: &Args) -> Result<Outcome> {
+fn run(args: &Args, signal: &Arc<AtomicUsize>) -> Result<Outcome> {
     selkd_learner::keep_freed_memory();
     let text = match &args.config {
         Some(p) => {
@@ -70,6 +74,8 @@ fn run(args: &Args) -> Result<Outcome> {
         signal_hook::consts::SIGHUP,
     ] {
         signal_hook::flag::register(sig, stop.clone()).context("installing signal handlers")?;
+        signal_hook::flag::register_usize(sig, signal.clone(), sig as usize)
+            .context("installing signal handlers")?;
     }
     let _lock = lock_run_id(&args.run_id)?;
     let mut learner = Learner::new(cfg, &args.run_dir, args.resume.as_deref())?;

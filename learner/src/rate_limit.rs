@@ -83,6 +83,55 @@ impl RateLimiter {
     }
 }
 
+/// Async mode's env-step grants: `granted[w]` is how far worker `w` may step (its rollout's
+/// transition count), raised here, never lowered (a worker may already be using it). Grants are
+/// topped up to an equal share of the limiter's `allowance` among the `takers` (the workers that
+/// step or wait for more), so a worker that holds an unused grant but has gone quiet (killed and
+/// waiting out its restart back-off, stopped, evaluating) leaves its share to the others instead
+/// of stalling the run. What may still arrive never exceeds `allowance` (G per K holds overall),
+/// and the grants never add up past `total` (the run takes exactly its budget). `first`: where
+/// the round-robin starts, so remainders do not always go to worker 0.
+pub fn top_up(
+    granted: &mut [u64],
+    sent: &[u64],
+    takers: &[bool],
+    allowance: u64,
+    total: u64,
+    first: usize,
+) {
+    let k = granted.len();
+    let held = |g: &[u64], w: usize| g[w].saturating_sub(sent[w]);
+    let outstanding: u64 = (0..k).map(|w| held(granted, w)).sum();
+    let committed: u64 = (0..k).map(|w| granted[w].max(sent[w])).sum();
+    let mut free = allowance
+        .saturating_sub(outstanding)
+        .min(total.saturating_sub(committed));
+    let n = takers.iter().filter(|&&t| t).count() as u64;
+    if n == 0 {
+        return;
+    }
+    // Each taker's target: an equal part of what the takers may hold (the allowance less what
+    // quiet workers hold, and no more than is left of the total).
+    let held_by = |take: bool| -> u64 {
+        (0..k)
+            .filter(|&w| takers[w] == take)
+            .map(|w| held(granted, w))
+            .sum()
+    };
+    let share = allowance
+        .saturating_sub(held_by(false))
+        .min(free + held_by(true))
+        .div_ceil(n);
+    for i in 0..k {
+        let w = (first + i) % k;
+        if takers[w] && free > 0 {
+            let add = share.saturating_sub(held(granted, w)).min(free);
+            granted[w] = granted[w].max(sent[w]) + add;
+            free -= add;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -152,5 +201,48 @@ mod tests {
         none.refill(40, 21);
         assert_eq!((none.rounds_due(40), none.warmed_up(40)), (21, false));
         assert_eq!(none.rounds_due(41), 22);
+    }
+
+    /// Three workers, allowance 30, total 100: equal shares while all step; a quiet worker
+    /// holding 10 unused keeps them, the two others share the rest; the grants stop at the total.
+    #[test]
+    fn grants_share_the_allowance_among_takers_and_never_pass_the_total() {
+        let mut g = vec![0; 3];
+        top_up(&mut g, &[0, 0, 0], &[true; 3], 30, 100, 0);
+        assert_eq!(g, [10, 10, 10]);
+        // Workers 1 and 2 used theirs; worker 0 went quiet with its 10 unused.
+        let sent = [0, 10, 10];
+        top_up(&mut g, &sent, &[false, true, true], 30, 100, 0);
+        assert_eq!(
+            g,
+            [10, 20, 20],
+            "only 20 more may arrive besides worker 0's 10"
+        );
+        let sent = [0, 20, 20];
+        top_up(&mut g, &sent, &[false, true, true], 30, 100, 1);
+        assert_eq!(g, [10, 30, 30]);
+        // Close to the total: 100 − 70 = 30 left, of which worker 0 holds 10.
+        let sent = [0, 30, 30];
+        top_up(&mut g, &sent, &[false, true, true], 60, 100, 0);
+        assert_eq!(g, [10, 45, 45]);
+        assert_eq!(g.iter().sum::<u64>(), 100);
+        top_up(&mut g, &[0, 45, 45], &[false, true, true], 60, 100, 0);
+        assert_eq!(g, [10, 45, 45], "nothing past the total");
+        // Worker 0's grant taken back (it is gone): the others finish the run.
+        g[0] = 0;
+        top_up(&mut g, &[0, 45, 45], &[false, true, true], 60, 100, 0);
+        assert_eq!(g, [0, 50, 50]);
+    }
+
+    /// A grant is never lowered, and nothing is granted while the workers hold the allowance.
+    #[test]
+    fn grants_in_use_are_kept_and_hold_the_allowance() {
+        let mut g = vec![8, 8];
+        top_up(&mut g, &[2, 2], &[true, true], 12, 1000, 0);
+        assert_eq!(g, [8, 8], "12 may arrive and 12 are granted already");
+        top_up(&mut g, &[2, 2], &[true, true], 4, 1000, 0);
+        assert_eq!(g, [8, 8]);
+        top_up(&mut g, &[8, 2], &[true, true], 12, 1000, 0);
+        assert_eq!(g, [14, 8]);
     }
 }

@@ -178,15 +178,20 @@ impl Selkd {
         !self.cfg.variants.is_empty()
     }
 
-    /// Lines 7–20 of Algorithm 1: G critic updates, then one update of every actor.
+    /// Lines 7–20 of Algorithm 1: G critic updates, then one update of every actor. With
+    /// `actor_updates_per_round` = U > 1 (not Algorithm 1), the actors are updated after each of
+    /// the last U critic updates; their statistics are the last update's.
     pub fn train_round(&mut self, replay: &mut ReplayBuffer, best: usize) -> RoundStats {
         let mut stats = RoundStats::default();
-        for _ in 0..self.cfg.utd {
+        let g = self.cfg.utd;
+        for update in 0..g {
             let (loss, q) = self.update_critics(replay);
-            stats.critic_loss += loss / self.cfg.utd as f64;
-            stats.q_mean += q / self.cfg.utd as f64;
+            stats.critic_loss += loss / g as f64;
+            stats.q_mean += q / g as f64;
+            if update + self.cfg.actor_updates_per_round >= g {
+                self.update_actors(replay, best, &mut stats);
+            }
         }
-        self.update_actors(replay, best, &mut stats);
         if self.avtd() {
             // Per-actor figures are the acting actor's: the variant that acts.
             for v in [
@@ -1310,6 +1315,26 @@ mod tests {
                 assert_eq!(stats.kl_to_best.len(), 3);
                 assert_eq!((s.critic_updates, s.actor_updates), (2, 1));
             }
+        }
+    }
+
+    #[test]
+    fn actors_are_updated_u_times_per_round() {
+        for (g, u) in [(3, 1), (3, 2), (3, 3)] {
+            let cfg = AlgoConfig {
+                utd: g,
+                actor_updates_per_round: u,
+                ..small(2, 3, 2)
+            };
+            let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 1);
+            let mut rb = filled_replay(3, 2, 100);
+            s.train_round(&mut rb, 0);
+            s.train_round(&mut rb, 1);
+            assert_eq!(
+                (s.critic_updates, s.actor_updates),
+                (2 * g as u64, 2 * u as u64)
+            );
+            assert_eq!(s.actor_opt.step, 2 * u as i64);
         }
     }
 

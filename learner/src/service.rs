@@ -4,6 +4,7 @@
 
 use crate::checkpoint::{self, TrainingState};
 use crate::config::{Config, Mode};
+use crate::metrics::{self, Intake, MetricsRow, Progress};
 use crate::ranking::Ranking;
 use crate::rate_limit::RateLimiter;
 use crate::replay::ReplayBuffer;
@@ -11,10 +12,9 @@ use crate::rollout::{Pending, Rollout, Watchdog};
 use crate::selkd::{RoundStats, Selkd};
 use crate::tensorboard::EventWriter;
 use anyhow::{anyhow, bail, Context, Result};
-use iceoryx2::port::update_connections::UpdateConnections;
 use selkd_protocol::{
-    self as proto, services, Control, Name, ReportKind, Services, TransitionHeader, TransitionRow,
-    MAX_ACTORS, MAX_HIDDEN_LAYERS, PROTOCOL_VERSION,
+    self as proto, services, Control, Handshake, LearnerPorts, ReportKind, Services,
+    TransitionHeader, TransitionRow, MAX_ACTORS, MAX_HIDDEN_LAYERS,
 };
 use std::collections::VecDeque;
 use std::io::Write;
@@ -52,6 +52,8 @@ pub fn parse_device(s: &str) -> Result<Device> {
 
 pub struct Learner {
     cfg: Config,
+    /// The env's spec, made once: a `gymnasium:` env is a `gymnasium.make` in Python.
+    spec: selkd_envs::EnvSpec,
     run_dir: PathBuf,
     k: usize,
     row: TransitionRow,
@@ -70,6 +72,14 @@ pub struct Learner {
     /// Per worker: a process that said hello and waits for its cursor.
     cursor_due: Vec<Option<u64>>,
     watchdog: Watchdog,
+    /// Async: per worker, how far it may step (see `rate_limit::top_up`).
+    granted: Vec<u64>,
+    /// Per worker: when the learner last heard from its accepted process.
+    last_heard: Vec<Instant>,
+    /// Async: per worker, its grant was taken back (its process is gone); it gets no new one
+    /// until it is heard from again.
+    benched: Vec<bool>,
+    grant_turn: usize,
     inserted: u64,
     lockstep_rounds: u64,
     weights_version: u64,
@@ -81,14 +91,8 @@ pub struct Learner {
     /// Per actor: (epoch, success rate) of its latest evaluation; NaN for tasks without success.
     eval_success: Vec<(u64, f64)>,
     pending: Vec<VecDeque<Pending>>,
-    dropped_nonfinite: u64,
-    dropped_malformed: u64,
-    /// Transitions from a worker process the learner had already replaced (sent after its
-    /// successor took over): never stored, and the successor sends those steps itself.
-    dropped_stale: u64,
-    lag_sum: f64,
-    lag_count: u64,
-    lag_max: u64,
+    /// Dropped transitions and the policy lag of those stored.
+    intake: Intake,
     last_stats: RoundStats,
     epochs_logged: u64,
     next_checkpoint: u64,
@@ -155,13 +159,7 @@ impl Learner {
             .open(&metrics_path)
             .with_context(|| format!("opening {}", metrics_path.display()))?;
         if fresh_metrics {
-            let per = |p: &str| {
-                (0..k)
-                    .map(|i| format!("{p}_{i}"))
-                    .collect::<Vec<_>>()
-                    .join(",")
-            };
-            writeln!(metrics, "epoch,env_steps,wall_s,critic_updates,updates_per_s,env_steps_per_s,critic_loss,q_mean,best,{},{},{},{},policy_lag_mean,dropped,{}", per("eval_return"), per("score"), per("alpha"), per("kl_to_best"), per("eval_success"))?;
+            writeln!(metrics, "{}", MetricsRow::header(k))?;
         }
         let every = cfg.run.checkpoint_every;
         let inserted = resumed.as_ref().map_or(0, |s| s.inserted);
@@ -174,9 +172,15 @@ impl Learner {
         if resumed.is_some() && replay.is_empty() {
             // Nothing to sample from: training waits for another warm-up's worth of data.
             limiter.refill(inserted, selkd.actor_updates);
-            tracing::warn!("the checkpoint holds no replay buffer: training resumes once {} new transitions (a warm-up's worth, from the current policies) refill it (set run.checkpoint_replay = true to keep it)", limiter.warmup_end() - inserted);
+            let why = if cfg.run.checkpoint_replay {
+                "its replay.safetensors is missing although run.checkpoint_replay = true"
+            } else {
+                "run.checkpoint_replay = false"
+            };
+            tracing::warn!("the checkpoint holds no replay buffer ({why}): training resumes once {} new transitions (a warm-up's worth, from the current policies) refill it", limiter.warmup_end() - inserted);
         }
         Ok(Self {
+            spec: spec.clone(),
             limiter,
             ranking: resumed.as_ref().map_or_else(
                 || Ranking::new(k, cfg.eval.score_window),
@@ -197,6 +201,13 @@ impl Learner {
                 Duration::from_secs_f64(cfg.run.worker_timeout),
                 Instant::now(),
             ),
+            granted: resumed.as_ref().map_or_else(
+                || vec![0; k],
+                |s| s.rollouts().iter().map(|r| r.sent).collect(),
+            ),
+            last_heard: vec![Instant::now(); k],
+            benched: vec![false; k],
+            grant_turn: 0,
             inserted,
             lockstep_rounds: resumed.as_ref().map_or(0, |s| s.lockstep_rounds),
             weights_version: resumed.as_ref().map_or(1, |s| s.weights_version),
@@ -214,12 +225,9 @@ impl Learner {
                     .collect(),
                 None => (0..k).map(|_| VecDeque::new()).collect(),
             },
-            dropped_nonfinite: resumed.as_ref().map_or(0, |s| s.dropped[0]),
-            dropped_malformed: resumed.as_ref().map_or(0, |s| s.dropped[1]),
-            dropped_stale: resumed.as_ref().map_or(0, |s| s.dropped[2]),
-            lag_sum: resumed.as_ref().map_or(0.0, |s| s.policy_lag.0),
-            lag_count: resumed.as_ref().map_or(0, |s| s.policy_lag.1),
-            lag_max: resumed.as_ref().map_or(0, |s| s.policy_lag.2),
+            intake: resumed.as_ref().map_or_else(Intake::default, |s| {
+                Intake::restore(s.dropped, s.policy_lag)
+            }),
             last_stats: resumed
                 .as_ref()
                 .and_then(|s| s.last_round.as_ref())
@@ -246,70 +254,21 @@ impl Learner {
 
     /// Runs until the budget is reached or `stop` is raised.
     pub fn run(&mut self, run_id: &str, stop: Arc<AtomicBool>) -> Result<Outcome> {
-        let svc = Services::new(run_id);
+        clean_half_made_nodes();
         let node = services::node(&proto::learner_node_name(run_id))
             .map_err(|e| anyhow!("starting the iceoryx2 node: {e}"))?;
-        let io = |what: &'static str| {
-            move |e: services::Error| anyhow!("opening the {what} service: {e}")
-        };
         let k = self.k;
-        let transitions = services::transitions(&node, &svc, k)
-            .map_err(io("transitions"))?
-            .subscriber_builder()
-            .buffer_size(proto::TRANSITION_BUFFER)
-            .create()?;
-        let reports = services::reports(&node, &svc, k)
-            .map_err(io("reports"))?
-            .subscriber_builder()
-            .create()?;
-        let wake = services::to_learner(&node, &svc, k)
-            .map_err(io("to-learner"))?
-            .listener_builder()
-            .create()?;
-        let notify_workers = services::to_workers(&node, &svc)
-            .map_err(io("to-workers"))?
-            .notifier_builder()
-            .create()?;
-        let control_pub = services::control(&node, &svc)
-            .map_err(io("control"))?
-            .publisher_builder()
-            .create()?;
-        let ranking_pub = services::ranking(&node, &svc)
-            .map_err(io("ranking"))?
-            .publisher_builder()
-            .create()?;
-        let n_params = self.selkd.actor_weights(0).len();
-        let weight_pubs = (0..k)
-            .map(|i| {
-                Ok(services::weights(&node, &svc, i)
-                    .map_err(io("weights"))?
-                    .publisher_builder()
-                    .initial_max_slice_len(n_params)
-                    .create()?)
-            })
-            .collect::<Result<Vec<_>>>()?;
-
-        let cursor_pubs = (0..k)
-            .map(|i| {
-                Ok(services::cursor(&node, &svc, i)
-                    .map_err(io("cursor"))?
-                    .publisher_builder()
-                    .initial_max_slice_len(4096)
-                    .allocation_strategy(iceoryx2::prelude::AllocationStrategy::PowerOfTwo)
-                    .create()?)
-            })
-            .collect::<Result<Vec<_>>>()?;
-
-        let publish_weights = |s: &Selkd, version: u64| -> Result<()> {
-            for (i, p) in weight_pubs.iter().enumerate() {
-                let mut sample = p.loan_slice_uninit(n_params)?;
-                *sample.user_header_mut() = proto::WeightsHeader {
-                    actor: i as u32,
-                    version,
-                };
-                sample.write_from_slice(&s.actor_weights(i)).send()?;
-            }
-            Ok(())
+        let ports = LearnerPorts::open(
+            &node,
+            &Services::new(run_id),
+            k,
+            self.selkd.actor_weights(0).len(),
+        )
+        .map_err(|e| anyhow!("{e}"))?;
+        let publish_weights = |s: &Selkd, version: u64| {
+            ports
+                .publish_weights(version, |i| s.actor_weights(i))
+                .map_err(|e| anyhow!("publishing weights: {e}"))
         };
         publish_weights(&self.selkd, self.weights_version)?;
         let mut last_control = None;
@@ -322,18 +281,19 @@ impl Learner {
         let mut finishing_since: Option<Instant> = None;
         let mut outcome = Outcome::Finished;
         let mut trained_last = false;
+        let mut last_gone_check = Instant::now();
 
         loop {
             // Wake on any worker message (or every 50 ms to keep progress, checkpoints and stop
             // handling responsive).
             // A pass that trained does not wait: more rounds may be due.
             if !trained_last {
-                selkd_protocol::wait_for_wake(&wake, Duration::from_millis(50))?;
+                selkd_protocol::wait_for_wake(&ports.wake, Duration::from_millis(50))?;
             }
-            while let Some(r) = reports.receive()? {
+            while let Some(r) = ports.reports.receive()? {
                 self.on_report(r.payload());
             }
-            while let Some(t) = transitions.receive()? {
+            while let Some(t) = ports.transitions.receive()? {
                 self.on_transition(*t.user_header(), t.payload());
             }
             // A worker that said hello gets its cursor once every transition of its predecessor
@@ -341,19 +301,17 @@ impl Learner {
             for w in 0..k {
                 if let Some(incarnation) = self.cursor_due[w].take() {
                     let r = &self.rollouts[w];
-                    let p = &cursor_pubs[w];
-                    p.update_connections()?;
-                    let mut sample = p.loan_slice_uninit(r.actions.len())?;
-                    *sample.user_header_mut() = proto::CursorHeader {
+                    let cursor = proto::CursorHeader {
                         worker: w as u32,
                         incarnation,
                         sent: r.sent,
                         episode: r.episode,
                         step: r.step,
                     };
-                    sample.write_from_slice(&r.actions).send()?;
+                    ports
+                        .send_cursor(cursor, &r.actions)
+                        .map_err(|e| anyhow!("sending worker {w}'s cursor: {e}"))?;
                     self.accepting[w] = Some(incarnation);
-                    notify_workers.notify()?;
                 }
             }
             let trained = match self.cfg.run.mode {
@@ -372,6 +330,9 @@ impl Learner {
                 // A periodic checkpoint that fails (a full disk) is not the end of the run: the
                 // next one tries again. Only the final one must succeed.
                 if let Err(e) = self.checkpoint(&format!("step-{}", self.inserted)) {
+                    if e.downcast_ref::<checkpoint::NonFinite>().is_some() {
+                        return Err(e.context(format!("at {} env steps", self.inserted)));
+                    }
                     tracing::error!("checkpoint at {} env steps failed: {e:#}; training goes on, the next checkpoint tries again", self.inserted);
                 }
                 self.next_checkpoint += self.cfg.run.checkpoint_every;
@@ -388,6 +349,10 @@ impl Learner {
                     && (evals_in
                         || finishing_since
                             .is_some_and(|t| t.elapsed() > Duration::from_secs(120))));
+            if self.cfg.run.mode == Mode::Async && last_gone_check.elapsed() >= GONE_CHECK {
+                last_gone_check = Instant::now();
+                self.take_back_grants_of_gone_workers(run_id);
+            }
             let control = self.control(done);
             self.watch(&control);
             if last_control
@@ -395,23 +360,21 @@ impl Learner {
                 .map(|c: &Control| !same_control(c, &control))
                 .unwrap_or(true)
             {
-                control_pub.send_copy(control)?;
-                notify_workers.notify()?;
+                ports.control.send_copy(control)?;
+                ports.to_workers.notify()?;
                 last_control = Some(control);
             }
             // Late (or restarted) subscribers get the latest control, ranking and weights from the
             // publishers' history only once the publisher looks for new connections.
             if last_connect.elapsed() >= Duration::from_millis(50) {
                 last_connect = Instant::now();
-                control_pub.update_connections()?;
-                ranking_pub.update_connections()?;
-                for p in &weight_pubs {
-                    p.update_connections()?;
-                }
+                ports
+                    .connect_latecomers()
+                    .map_err(|e| anyhow!("connecting late workers: {e}"))?;
             }
             if self.ranking.version != ranking_version {
                 ranking_version = self.ranking.version;
-                ranking_pub.send_copy(self.ranking_message())?;
+                ports.ranking.send_copy(self.ranking_message())?;
             }
             if last_progress.elapsed() >= Duration::from_secs(1) || done {
                 let dt = window.0.elapsed().as_secs_f64();
@@ -437,22 +400,27 @@ impl Learner {
             }
         }
         self.log_epochs()?;
-        self.checkpoint("final").with_context(|| {
+        if let Err(e) = self.checkpoint("final") {
+            if e.downcast_ref::<checkpoint::NonFinite>().is_some() {
+                return Err(e);
+            }
             let checkpoints = self.run_dir.join("checkpoints");
             let latest = std::fs::read_to_string(checkpoints.join("latest"))
-                .map_or("none".to_string(), |n| checkpoints.join(n.trim()).display().to_string());
-            format!(
+                .map_or("none".to_string(), |n| {
+                    checkpoints.join(n.trim()).display().to_string()
+                });
+            return Err(e.context(format!(
                 "writing the final checkpoint (the latest complete one: {latest}; free space, then `selkd train --resume {}` continues from it)",
                 self.run_dir.display()
-            )
-        })?;
+            )));
+        }
         // Give workers a moment to read the stop order before the node (and its history) goes away.
         std::thread::sleep(Duration::from_millis(200));
         tracing::info!(
             env_steps = self.inserted,
             critic_updates = self.selkd.critic_updates,
-            dropped_nonfinite = self.dropped_nonfinite,
-            dropped_stale = self.dropped_stale,
+            dropped_nonfinite = self.intake.dropped_nonfinite,
+            dropped_stale = self.intake.dropped_stale,
             "learner done ({outcome:?})"
         );
         Ok(outcome)
@@ -467,20 +435,11 @@ impl Learner {
             );
             return;
         }
-        self.watchdog.heard(w, Instant::now());
+        self.heard(w);
         match r.kind {
             ReportKind::Hello => {
-                let spec = self.cfg.env_spec().expect("validated");
-                if r.protocol_version != PROTOCOL_VERSION
-                    || r.env.as_str() != spec.id
-                    || r.env_options != self.cfg.env_options_fingerprint()
-                    || r.obs_dim as usize != spec.obs_dim
-                    || r.act_dim as usize != spec.act_dim
-                {
-                    tracing::error!(
-                        "worker {w} does not fit this run: it has protocol v{}, env `{}`, obs {}, act {}; the learner has protocol v{PROTOCOL_VERSION}, env `{}`, obs {}, act {}",
-                        r.protocol_version, r.env.as_str(), r.obs_dim, r.act_dim, spec.id, spec.obs_dim, spec.act_dim
-                    );
+                if let Err(e) = proto::check_peer(&self.handshake(), &r.handshake()) {
+                    tracing::error!("worker {w}: {e}");
                     return;
                 }
                 if self.accepting[w] != Some(r.incarnation) && self.cursor_due[w].is_none() {
@@ -515,23 +474,34 @@ impl Learner {
             || h.act_dim as usize != self.row.act_dim
             || row.len() != self.row.len()
         {
-            self.dropped_malformed += 1;
-            if self.dropped_malformed == 1 {
+            self.intake.dropped_malformed += 1;
+            if self.intake.dropped_malformed == 1 {
                 tracing::error!("dropped a transition that does not fit the run (worker {w}, obs {}, act {}, {} values); counting further ones", h.obs_dim, h.act_dim, row.len());
             }
             return;
         }
         if self.accepting[w] != Some(h.incarnation) {
-            self.dropped_stale += 1;
+            self.intake.dropped_stale += 1;
             tracing::warn!(
                 worker = w,
-                total = self.dropped_stale,
+                total = self.intake.dropped_stale,
                 "dropped a transition from a replaced process of worker {w} (generation {}); its successor sends that step itself",
                 h.generation
             );
             return;
         }
-        self.watchdog.heard(w, Instant::now());
+        if self.cfg.run.mode == Mode::Async && self.rollouts[w].sent >= self.granted[w] {
+            // Beyond its grant: sent by a process whose grant was taken back as it died (the
+            // run's total would be passed); its successor sends that step itself.
+            self.intake.dropped_stale += 1;
+            tracing::warn!(
+                worker = w,
+                total = self.intake.dropped_stale,
+                "dropped a transition of worker {w} beyond its grant; its successor sends that step itself"
+            );
+            return;
+        }
+        self.heard(w);
         let (_, action, _, _, terminated, truncated) = self.row.split(row);
         if !self.rollouts[w].record(h.episode, h.step, action, terminated || truncated) {
             tracing::error!(
@@ -543,11 +513,12 @@ impl Learner {
         }
         let finite = row.iter().all(|v| v.is_finite());
         if !finite {
-            self.dropped_nonfinite += 1;
-            if self.dropped_nonfinite == 1 || self.dropped_nonfinite.is_power_of_two() {
+            self.intake.dropped_nonfinite += 1;
+            let dropped = self.intake.dropped_nonfinite;
+            if dropped == 1 || dropped.is_power_of_two() {
                 tracing::warn!(
                     worker = w,
-                    total = self.dropped_nonfinite,
+                    total = dropped,
                     field = self
                         .row
                         .field_of(row.iter().position(|v| !v.is_finite()).unwrap_or(0)),
@@ -556,10 +527,8 @@ impl Learner {
             }
         }
         if h.policy_version > 0 {
-            let lag = self.weights_version.saturating_sub(h.policy_version);
-            self.lag_sum += lag as f64;
-            self.lag_count += 1;
-            self.lag_max = self.lag_max.max(lag);
+            self.intake
+                .policy_lag(self.weights_version.saturating_sub(h.policy_version));
         }
         let p = Pending {
             worker: w,
@@ -569,6 +538,49 @@ impl Learner {
         match self.cfg.run.mode {
             Mode::Sync => self.pending[w].push_back(p),
             Mode::Async => self.store(p),
+        }
+    }
+
+    fn heard(&mut self, w: usize) {
+        let now = Instant::now();
+        self.watchdog.heard(w, now);
+        self.last_heard[w] = now;
+        self.benched[w] = false;
+    }
+
+    /// Async: a worker that holds an unused grant, has been quiet for `QUIET` and has no live
+    /// iceoryx2 node is gone (killed; the launcher restarts it after a back-off): its grant goes
+    /// back to the pool, so the others can finish the run without waiting for its successor.
+    /// A stopped (SIGSTOP) or busy worker's node is alive: its grant stays, and the others
+    /// still take its share of the allowance.
+    fn take_back_grants_of_gone_workers(&mut self, run_id: &str) {
+        let quiet: Vec<usize> = (0..self.k)
+            .filter(|&w| {
+                // Only a worker that had joined: one still starting has no node yet.
+                self.accepting[w].is_some()
+                    && !self.benched[w]
+                    && self.granted[w] > self.rollouts[w].sent
+                    && self.last_heard[w].elapsed() >= QUIET
+            })
+            .collect();
+        if quiet.is_empty() {
+            return;
+        }
+        let alive = match live_workers(run_id, self.k) {
+            Ok(a) => a,
+            Err(e) => {
+                tracing::warn!("{e:#}; grants of gone workers stay theirs");
+                return;
+            }
+        };
+        for w in quiet.into_iter().filter(|&w| !alive[w]) {
+            tracing::info!(
+                worker = w,
+                "worker {w} is gone with {} env steps of its grant unused; they go to the other workers",
+                self.granted[w] - self.rollouts[w].sent
+            );
+            self.granted[w] = self.rollouts[w].sent;
+            self.benched[w] = true;
         }
     }
 
@@ -676,8 +688,19 @@ impl Learner {
         Ok(())
     }
 
-    fn control(&self, stop: bool) -> Control {
-        let spec = self.cfg.env_spec().expect("validated");
+    /// The learner's side of the handshake, announced in every [`Control`].
+    fn handshake(&self) -> Handshake {
+        let spec = &self.spec;
+        Handshake::ours(
+            spec.id,
+            self.cfg.env_options_fingerprint(),
+            spec.obs_dim,
+            spec.act_dim,
+        )
+    }
+
+    fn control(&mut self, stop: bool) -> Control {
+        let ours = self.handshake();
         let per_actor_cap = self.cfg.steps_per_actor();
         let mut budget = [0u64; MAX_ACTORS];
         match self.cfg.run.mode {
@@ -690,13 +713,28 @@ impl Learner {
                 budget[..self.k].iter_mut().for_each(|x| *x = b);
             }
             Mode::Async => {
+                // No per-worker cap: a share a worker cannot use (it is dead, stopped or busy)
+                // goes to the others, within the limiter's allowance and the run's total.
                 let allowance = self
                     .limiter
                     .insert_allowance(self.inserted, self.selkd.actor_updates);
-                let each = allowance.div_ceil(self.k as u64);
-                for (w, x) in budget[..self.k].iter_mut().enumerate() {
-                    *x = (self.rollouts[w].sent + each).min(per_actor_cap);
-                }
+                let sent: Vec<u64> = self.rollouts.iter().map(|r| r.sent).collect();
+                let takers: Vec<bool> = (0..self.k)
+                    .map(|w| {
+                        !self.benched[w]
+                            && (self.granted[w] <= sent[w] || self.last_heard[w].elapsed() < QUIET)
+                    })
+                    .collect();
+                crate::rate_limit::top_up(
+                    &mut self.granted,
+                    &sent,
+                    &takers,
+                    allowance,
+                    self.cfg.run.total_env_steps,
+                    self.grant_turn,
+                );
+                self.grant_turn = (self.grant_turn + 1) % self.k;
+                budget[..self.k].copy_from_slice(&self.granted);
             }
         }
         let mut hidden = [0u32; MAX_HIDDEN_LAYERS];
@@ -704,12 +742,12 @@ impl Learner {
             *h = v as u32;
         }
         Control {
-            protocol_version: PROTOCOL_VERSION,
+            protocol_version: ours.protocol_version,
             actors: self.k as u32,
-            env: Name::new(spec.id),
-            env_options: self.cfg.env_options_fingerprint(),
-            obs_dim: spec.obs_dim as u32,
-            act_dim: spec.act_dim as u32,
+            env: ours.env,
+            env_options: ours.env_options,
+            obs_dim: ours.obs_dim,
+            act_dim: ours.act_dim,
             seed: self.cfg.run.seed,
             hidden,
             hidden_layers: self.cfg.algo.hidden.len() as u32,
@@ -753,81 +791,16 @@ impl Learner {
         }
     }
 
-    /// One epoch's metrics row as TensorBoard scalars at its env steps.
-    fn epoch_scalars(
-        &mut self,
-        epoch: u64,
-        env_steps: u64,
-        eval: &[f64],
-        scores: &[f64],
-        success: &[f64],
-        wall: f64,
-    ) {
+    /// The latest round's numbers in TensorBoard (`live/`), every few seconds.
+    fn live_scalars(&mut self, rates: (f64, f64)) {
         if self.tb.is_none() {
             return;
         }
-        let st = &self.last_stats;
-        let lag = if self.lag_count > 0 {
-            self.lag_sum / self.lag_count as f64
-        } else {
-            0.0
-        };
-        let mut values: Vec<(String, f64)> = vec![
-            ("eval/best".into(), self.ranking.best() as f64),
-            ("train/epoch".into(), epoch as f64),
-            (
-                "train/critic_updates".into(),
-                self.selkd.critic_updates as f64,
-            ),
-            ("train/critic_loss".into(), st.critic_loss),
-            ("train/q_mean".into(), st.q_mean),
-            ("train/policy_lag_mean".into(), lag),
-            (
-                "train/dropped".into(),
-                (self.dropped_nonfinite + self.dropped_malformed + self.dropped_stale) as f64,
-            ),
-            (
-                "rates/updates_per_s".into(),
-                self.selkd.critic_updates as f64 / wall.max(1e-9),
-            ),
-            (
-                "rates/env_steps_per_s".into(),
-                self.inserted as f64 / wall.max(1e-9),
-            ),
-        ];
-        for i in 0..self.k {
-            let at = |v: &[f64]| v.get(i).copied().unwrap_or(f64::NAN);
-            values.push((format!("eval/return_{i}"), at(eval)));
-            values.push((format!("eval/score_{i}"), at(scores)));
-            values.push((format!("eval/success_{i}"), at(success)));
-            values.push((format!("train/alpha_{i}"), at(&st.alpha)));
-            values.push((format!("train/kl_to_best_{i}"), at(&st.kl_to_best)));
-        }
-        self.write_scalars(env_steps, &values);
-    }
-
-    /// The latest round's losses, α, KL and the rates, every few seconds (`live/`).
-    fn live_scalars(&mut self, (updates_per_s, steps_per_s): (f64, f64)) {
-        if self.tb.is_none() {
-            return;
-        }
-        let st = &self.last_stats;
-        let mut values: Vec<(String, f64)> = vec![
-            ("live/critic_loss".into(), st.critic_loss),
-            ("live/q_mean".into(), st.q_mean),
-            ("live/updates_per_s".into(), updates_per_s),
-            ("live/env_steps_per_s".into(), steps_per_s),
-        ];
-        for (i, (a, kl)) in st.alpha.iter().zip(&st.kl_to_best).enumerate() {
-            values.push((format!("live/alpha_{i}"), *a));
-            values.push((format!("live/kl_to_best_{i}"), *kl));
-        }
-        if self.validation.is_some() {
-            values.push(("avtd/selected".into(), self.selkd.selected as f64));
-            for (v, td) in self.selkd.validation_td.iter().enumerate() {
-                values.push((format!("avtd/validation_td_{v}"), *td));
-            }
-        }
+        let avtd = self
+            .validation
+            .is_some()
+            .then_some((self.selkd.selected, self.selkd.validation_td.as_slice()));
+        let values = metrics::live_scalars(&self.last_stats, rates, avtd);
         self.write_scalars(self.inserted, &values);
     }
 
@@ -861,36 +834,35 @@ impl Learner {
     }
 
     /// One `PROGRESS {json}` line on stdout per second: the launcher draws its progress line from it.
-    fn progress(&self, (updates_per_s, steps_per_s): (f64, f64)) {
-        let scores: Vec<Option<f64>> = self.ranking.scores();
-        let (ratio, target) = self.limiter.ratio(self.selkd.critic_updates, self.inserted);
-        let line = serde_json::json!({
-            "env_steps": self.inserted,
-            "total_env_steps": self.cfg.run.total_env_steps,
-            "critic_updates": self.selkd.critic_updates,
-            "updates_per_s": updates_per_s,
-            "env_steps_per_s": steps_per_s,
-            "scores": scores,
-            "best": self.ranking.best(),
-            "weights_version": self.weights_version,
-            "policy_lag_mean": if self.lag_count > 0 { self.lag_sum / self.lag_count as f64 } else { 0.0 },
-            "policy_lag_max": self.lag_max,
-            "updates_per_transition": ratio,
-            "target_updates_per_transition": target,
-            "dropped_nonfinite": self.dropped_nonfinite,
-            "dropped_malformed": self.dropped_malformed,
-            "dropped_stale": self.dropped_stale,
-            // Each actor's latest evaluation success rate (null for tasks without one).
-            "success": self
+    fn progress(&self, (updates_per_s, env_steps_per_s): (f64, f64)) {
+        let (updates_per_transition, target_updates_per_transition) =
+            self.limiter.ratio(self.selkd.critic_updates, self.inserted);
+        let progress = Progress {
+            best: self.ranking.best(),
+            critic_updates: self.selkd.critic_updates,
+            dropped_malformed: self.intake.dropped_malformed,
+            dropped_nonfinite: self.intake.dropped_nonfinite,
+            dropped_stale: self.intake.dropped_stale,
+            env_steps: self.inserted,
+            env_steps_per_s,
+            policy_lag_max: self.intake.lag_max,
+            policy_lag_mean: self.intake.policy_lag_mean(),
+            scores: self.ranking.scores(),
+            success: self
                 .eval_success
                 .iter()
                 .map(|&(_, rate)| rate.is_finite().then_some(rate))
-                .collect::<Vec<_>>(),
-            "wall_s": self.wall(),
-        });
+                .collect(),
+            target_updates_per_transition,
+            total_env_steps: self.cfg.run.total_env_steps,
+            updates_per_s,
+            updates_per_transition,
+            wall_s: self.wall(),
+            weights_version: self.weights_version,
+        };
         // The launcher may be gone (its stdout closed): progress is best effort, never a panic.
         let mut out = std::io::stdout().lock();
-        let _ = writeln!(out, "PROGRESS {line}").and_then(|()| out.flush());
+        let _ = writeln!(out, "PROGRESS {}", progress.json()).and_then(|()| out.flush());
     }
 
     /// One metrics row per epoch whose evaluations are all in.
@@ -906,78 +878,81 @@ impl Learner {
                 Some(&(epoch, steps)) if epoch == e => steps,
                 _ => e * self.cfg.eval.epoch_env_steps,
             };
-            let wall = self.wall();
-            let join = |v: &[f64]| {
-                v.iter()
-                    .map(|x| format!("{x:.6}"))
-                    .collect::<Vec<_>>()
-                    .join(",")
-            };
-            let scores: Vec<f64> = self
-                .ranking
-                .scores()
-                .into_iter()
-                .map(|s| s.unwrap_or(f64::NAN))
-                .collect();
-            let eval: Vec<f64> = (0..self.k)
-                .map(|i| {
-                    if self.ranking.last_eval_epoch(i) >= e {
-                        scores[i]
-                    } else {
-                        f64::NAN
-                    }
-                })
-                .collect();
-            // Tasks with a success criterion (the assembly task) report the evaluation's success
-            // rate; others leave NaN.
-            let success: Vec<f64> = self
-                .eval_success
-                .iter()
-                .map(|&(epoch, rate)| if epoch >= e { rate } else { f64::NAN })
-                .collect();
-            let pad = |v: &[f64]| {
-                if v.len() == self.k {
-                    join(v)
-                } else {
-                    join(&vec![f64::NAN; self.k])
-                }
-            };
-            writeln!(
-                self.metrics,
-                "{e},{env_steps},{wall:.3},{},{:.3},{:.3},{:.6},{:.6},{},{},{},{},{},{:.3},{},{}",
-                self.selkd.critic_updates,
-                self.selkd.critic_updates as f64 / wall.max(1e-9),
-                self.inserted as f64 / wall.max(1e-9),
-                self.last_stats.critic_loss,
-                self.last_stats.q_mean,
-                self.ranking.best(),
-                join(&eval),
-                join(&scores),
-                pad(&self.last_stats.alpha),
-                pad(&self.last_stats.kl_to_best),
-                if self.lag_count > 0 {
-                    self.lag_sum / self.lag_count as f64
-                } else {
-                    0.0
-                },
-                self.dropped_nonfinite + self.dropped_malformed + self.dropped_stale,
-                join(&success),
-            )?;
+            let row = self.metrics_row(e, env_steps);
+            writeln!(self.metrics, "{}", row.csv())?;
             self.metrics.flush()?;
-            self.epoch_scalars(e, env_steps, &eval, &scores, &success, wall);
+            if self.tb.is_some() {
+                self.write_scalars(env_steps, &row.scalars());
+            }
             tracing::info!(
                 epoch = e,
                 env_steps,
-                best = self.ranking.best(),
+                best = row.best,
                 "evaluation returns {:?}",
-                eval
+                row.eval_return
             );
         }
         Ok(())
     }
 
+    /// Epoch `epoch`'s row, ended at `env_steps`, as the learner stands now.
+    fn metrics_row(&self, epoch: u64, env_steps: u64) -> MetricsRow {
+        let wall_s = self.wall();
+        let score: Vec<f64> = self
+            .ranking
+            .scores()
+            .into_iter()
+            .map(|s| s.unwrap_or(f64::NAN))
+            .collect();
+        // An actor whose latest evaluation is older than this epoch has no return for it.
+        let eval_return = (0..self.k)
+            .map(|i| {
+                if self.ranking.last_eval_epoch(i) >= epoch {
+                    score[i]
+                } else {
+                    f64::NAN
+                }
+            })
+            .collect();
+        // Tasks with a success criterion (the assembly task) report the evaluation's success
+        // rate; others leave NaN.
+        let eval_success = self
+            .eval_success
+            .iter()
+            .map(|&(e, rate)| if e >= epoch { rate } else { f64::NAN })
+            .collect();
+        // Before the first round there are no per-actor statistics: NaN for every actor.
+        let per_actor = |v: &[f64]| {
+            if v.len() == self.k {
+                v.to_vec()
+            } else {
+                vec![f64::NAN; self.k]
+            }
+        };
+        let stats = &self.last_stats;
+        MetricsRow {
+            epoch,
+            env_steps,
+            wall_s,
+            critic_updates: self.selkd.critic_updates,
+            updates_per_s: self.selkd.critic_updates as f64 / wall_s.max(1e-9),
+            env_steps_per_s: self.inserted as f64 / wall_s.max(1e-9),
+            critic_loss: stats.critic_loss,
+            q_mean: stats.q_mean,
+            best: self.ranking.best(),
+            eval_return,
+            score,
+            alpha: per_actor(&stats.alpha),
+            kl_to_best: per_actor(&stats.kl_to_best),
+            policy_lag_mean: self.intake.policy_lag_mean(),
+            dropped: self.intake.dropped(),
+            eval_success,
+        }
+    }
+
     fn checkpoint(&mut self, name: &str) -> Result<()> {
         let dir = self.run_dir.join("checkpoints").join(name);
+        let (dropped, policy_lag) = self.intake.saved();
         let state = TrainingState {
             config: self.cfg.clone(),
             rng: self.selkd.rng.clone(),
@@ -988,12 +963,8 @@ impl Learner {
             received: self.rollouts.iter().map(|r| r.sent).collect(),
             rollouts: self.rollouts.clone(),
             last_round: Some((&self.last_stats).into()),
-            dropped: [
-                self.dropped_nonfinite,
-                self.dropped_malformed,
-                self.dropped_stale,
-            ],
-            policy_lag: (self.lag_sum, self.lag_count, self.lag_max),
+            dropped,
+            policy_lag,
             pending: self
                 .pending
                 .iter()
@@ -1071,6 +1042,48 @@ fn truncate_metrics(path: &Path, epochs: u64) -> Result<()> {
     checkpoint::write_atomically(path, &kept)
 }
 
+/// Async: a worker holding an unused grant that has sent nothing for this long is not a taker
+/// of new grants, and is looked for among the live iceoryx2 nodes (at most every `GONE_CHECK`).
+const QUIET: Duration = Duration::from_secs(1);
+const GONE_CHECK: Duration = Duration::from_millis(250);
+
+/// Per worker of this run, whether a live iceoryx2 node of its exists.
+fn live_workers(run_id: &str, k: usize) -> Result<Vec<bool>> {
+    use iceoryx2::node::{NodeState, NodeView};
+    use iceoryx2::prelude::{ipc, CallbackProgression, Config as IoxConfig, Node};
+    let names: Vec<String> = (0..k).map(|w| proto::worker_node_name(run_id, w)).collect();
+    let mut alive = vec![false; k];
+    Node::<ipc::Service>::list(IoxConfig::global_config(), |state| {
+        if let NodeState::Alive(view) = state {
+            if let Some(d) = view.details() {
+                let name = d.name().to_string();
+                if let Some(w) = names.iter().position(|n| *n == name) {
+                    alive[w] = true;
+                }
+            }
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| anyhow!("listing iceoryx2 nodes: {e:?}"))?;
+    Ok(alive)
+}
+
+/// Removes node entries of processes killed while they made their node (iceoryx2 cannot), as
+/// `selkd_protocol::stale` allows; best effort, logged.
+pub fn clean_half_made_nodes() {
+    match selkd_protocol::stale::remove_half_made_nodes() {
+        Ok(r) => {
+            for p in &r.removed {
+                tracing::info!("removed the half-made iceoryx2 node entry {} (its process died while making it)", p.display());
+            }
+            for (p, why) in &r.left {
+                tracing::warn!("left the iceoryx2 node entry {}: {why}", p.display());
+            }
+        }
+        Err(e) => tracing::warn!("looking for half-made iceoryx2 node entries: {e}"),
+    }
+}
+
 fn same_control(a: &Control, b: &Control) -> bool {
     a.weights_version == b.weights_version
         && a.eval_epoch == b.eval_epoch
@@ -1131,6 +1144,7 @@ mod tests {
         cfg.algo.actors = 2;
         let mut l = Learner::new(cfg, &dir, None).unwrap();
         l.accepting = vec![Some(7); 2];
+        l.granted = vec![u64::MAX; 2];
         (l, dir)
     }
 
@@ -1159,7 +1173,10 @@ mod tests {
             l.on_transition(header(1), &inf);
             l.on_transition(header(0), &good[..9]); // one value short
             l.on_transition(header(7), &good); // no such worker
-            assert_eq!((l.dropped_nonfinite, l.dropped_malformed), (2, 2));
+            assert_eq!(
+                (l.intake.dropped_nonfinite, l.intake.dropped_malformed),
+                (2, 2)
+            );
             // The dropped steps still count as the workers' steps (a lockstep round must not wait
             // for them forever), but nothing of them is stored.
             l.on_transition(header(1), &good);
@@ -1223,6 +1240,7 @@ mod tests {
         cfg.validate().unwrap();
         let mut l = Learner::new(cfg, &dir, None).unwrap();
         l.accepting = vec![Some(7)];
+        l.granted = vec![u64::MAX];
         // Transition t (1-based) carries t in its first observation entry.
         for t in 1..=40 {
             let row = [t as f32, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0];

@@ -186,6 +186,14 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
             [1, 2],
         ),
         (
+            "actors updated G times per round (U = G, not Algorithm 1)",
+            AlgoConfig {
+                actor_updates_per_round: b.utd,
+                ..b.clone()
+            },
+            [2, 0],
+        ),
+        (
             "target entropy −0.5",
             AlgoConfig {
                 target_entropy: Some(-0.5),
@@ -289,8 +297,9 @@ fn replay(seed: u64) -> ReplayBuffer {
 }
 
 /// Two rounds, driven one update at a time so that every update's result is recorded: per round,
-/// G critic updates and then the actor update, which is what `train_round` does (checked: a twin
-/// trained by `train_round` ends bit-identical, with the same statistics).
+/// G critic updates, each of the last U (`actor_updates_per_round`, 1 in Algorithm 1) followed by
+/// an actor update, which is what `train_round` does (checked: a twin trained by `train_round`
+/// ends bit-identical, with the same statistics).
 fn run_case(name: &str, cfg: &AlgoConfig, best: [usize; 2], seed: u64) -> Value {
     let mut s = Selkd::new(cfg, OBS, ACT, Device::Cpu, seed);
     let mut rb = replay(seed + 100);
@@ -299,7 +308,7 @@ fn run_case(name: &str, cfg: &AlgoConfig, best: [usize; 2], seed: u64) -> Value 
     let mut round_stats = Vec::new();
     for &b in &best {
         let mut st = RoundStats::default();
-        for _ in 0..cfg.utd {
+        for g in 1..=cfg.utd {
             s.draws = Some(Vec::new());
             let (loss, q) = s.update_critics(&mut rb);
             st.critic_loss += loss / cfg.utd as f64;
@@ -308,13 +317,15 @@ fn run_case(name: &str, cfg: &AlgoConfig, best: [usize; 2], seed: u64) -> Value 
             updates.push(json!({
                 "kind": "critic", "draws": draws, "loss": loss, "q_mean": q, "state": state(&s),
             }));
+            if g > cfg.utd - cfg.actor_updates_per_round {
+                s.draws = Some(Vec::new());
+                s.update_actors(&mut rb, b, &mut st);
+                let draws: Vec<Value> = s.draws.take().unwrap().iter().map(draw).collect();
+                updates.push(json!({
+                    "kind": "actor", "best": b, "draws": draws, "stats": stats(&st), "state": state(&s),
+                }));
+            }
         }
-        s.draws = Some(Vec::new());
-        s.update_actors(&mut rb, b, &mut st);
-        let draws: Vec<Value> = s.draws.take().unwrap().iter().map(draw).collect();
-        updates.push(json!({
-            "kind": "actor", "best": b, "draws": draws, "stats": stats(&st), "state": state(&s),
-        }));
         round_stats.push(stats(&st));
     }
     let mut twin = Selkd::new(cfg, OBS, ACT, Device::Cpu, seed);

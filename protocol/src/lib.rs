@@ -12,6 +12,10 @@
 //! | `selkd/<run>/to-learner`   | event            | "something for the learner"               |
 //! | `selkd/<run>/to-workers`   | event            | "something for the workers"               |
 //!
+//! [`WorkerPorts`] and [`LearnerPorts`] open each side's ports of these services; [`check_peer`]
+//! is the handshake both sides run on [`Handshake`] (the learner's in [`Control`], a worker's in
+//! its hello [`Report`]).
+//!
 //! Weights, control and ranking keep a history of one, so a worker that starts late (or restarts)
 //! gets the current ones at once. Transitions are never dropped: the learner's buffer is sized
 //! above what the budgets in [`Control`] let workers have in flight, and overflow is off.
@@ -24,11 +28,15 @@
 //! where the learner's record ends: nothing is sent twice, nothing is skipped.
 
 pub mod lock;
+mod ports;
+pub mod stale;
+
+pub use ports::{LearnerPorts, WorkerPorts};
 
 use iceoryx2::prelude::*;
 
 /// Bumped whenever a message layout or meaning changes; checked in the handshake.
-pub const PROTOCOL_VERSION: u32 = 4;
+pub const PROTOCOL_VERSION: u32 = 5;
 /// Most actors a run may have (fixed arrays in [`Control`] and [`Ranking`]).
 pub const MAX_ACTORS: usize = 64;
 pub const MAX_HIDDEN_LAYERS: usize = 8;
@@ -39,18 +47,27 @@ pub const TRANSITION_BUFFER: usize = 16_384;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
 #[repr(C)]
 #[type_name("selkd::Name")]
-#[derive(Default)]
-pub struct Name(pub [u8; 32]);
+pub struct Name(pub [u8; NAME_BYTES]);
+
+impl Default for Name {
+    fn default() -> Self {
+        Name([0; NAME_BYTES])
+    }
+}
+
+/// The longest name a message carries: room for `gymnasium:` ids of third-party packages
+/// (`gymnasium:InvertedDoublePendulum-v5` is already 35 bytes). Configs are checked against it.
+pub const NAME_BYTES: usize = 96;
 
 impl Name {
     pub fn new(s: &str) -> Self {
-        let mut b = [0u8; 32];
-        let n = s.len().min(32);
+        let mut b = [0u8; NAME_BYTES];
+        let n = s.len().min(NAME_BYTES);
         b[..n].copy_from_slice(&s.as_bytes()[..n]);
         Name(b)
     }
     pub fn as_str(&self) -> &str {
-        let end = self.0.iter().position(|&c| c == 0).unwrap_or(32);
+        let end = self.0.iter().position(|&c| c == 0).unwrap_or(NAME_BYTES);
         std::str::from_utf8(&self.0[..end]).unwrap_or("<invalid>")
     }
 }
@@ -79,6 +96,24 @@ pub struct TransitionHeader {
 }
 
 /// Offsets into a transition row.
+///
+/// A worker writes a row, the learner splits it back into its fields:
+///
+/// ```no_run
+/// use selkd_protocol::TransitionRow;
+///
+/// let row = TransitionRow { obs_dim: 3, act_dim: 1 }; // Pendulum's sizes
+/// let mut buf = Vec::with_capacity(row.len());
+/// let (s, a, s2) = ([1.0, 0.0, 0.5], [0.25], [0.99, 0.1, 0.4]);
+/// row.write(&mut buf, &s, &a, -0.3, &s2, false, true);
+/// assert_eq!(buf.len(), row.len()); // 2·obs + act + 3
+///
+/// let (s_, a_, r, s2_, terminated, truncated) = row.split(&buf);
+/// assert_eq!((s_, a_, r, s2_), (&s[..], &a[..], -0.3, &s2[..]));
+/// // A time limit (truncated) is not a terminal state: the learner still bootstraps from s'.
+/// assert!(!terminated && truncated);
+/// assert_eq!(row.field_of(4), "r");
+/// ```
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct TransitionRow {
     pub obs_dim: usize,
@@ -294,59 +329,108 @@ pub fn max_ports(actors: usize) -> usize {
     2 * actors + 4
 }
 
+/// What each side shows in the handshake: the facts of a run a worker must share with its
+/// learner. The learner's are in its [`Control`], a worker's in its hello [`Report`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Handshake {
+    pub protocol_version: u32,
+    pub env: Name,
+    /// Fingerprint of the env's options (`selkd_envs::options_fingerprint`).
+    pub env_options: u64,
+    pub obs_dim: u32,
+    pub act_dim: u32,
+}
+
+impl Handshake {
+    /// This build's side, for an env of these sizes and options.
+    pub fn ours(env: &str, env_options: u64, obs_dim: usize, act_dim: usize) -> Self {
+        Self {
+            protocol_version: PROTOCOL_VERSION,
+            env: Name::new(env),
+            env_options,
+            obs_dim: obs_dim as u32,
+            act_dim: act_dim as u32,
+        }
+    }
+}
+
+impl std::fmt::Display for Handshake {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "protocol v{}, env `{}`, obs {}, act {}",
+            self.protocol_version,
+            self.env.as_str(),
+            self.obs_dim,
+            self.act_dim
+        )
+    }
+}
+
+impl Control {
+    pub fn handshake(&self) -> Handshake {
+        Handshake {
+            protocol_version: self.protocol_version,
+            env: self.env,
+            env_options: self.env_options,
+            obs_dim: self.obs_dim,
+            act_dim: self.act_dim,
+        }
+    }
+}
+
+impl Report {
+    pub fn handshake(&self) -> Handshake {
+        Handshake {
+            protocol_version: self.protocol_version,
+            env: self.env,
+            env_options: self.env_options,
+            obs_dim: self.obs_dim,
+            act_dim: self.act_dim,
+        }
+    }
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum ProtocolError {
     #[error("invalid service name `{0}`: {1}; run ids may use letters, digits, '-' and '_'")]
     Name(String, String),
     #[error(
-        "this worker does not fit the run: learner has protocol v{lp}, env `{le}`, obs {lo}, act {la}; \
-         worker has protocol v{wp}, env `{we}`, obs {wo}, act {wa}. Start the worker with the run's env and the same selkd build"
+        "this worker does not fit the run: learner has {learner}; worker has {worker}. \
+         Start the worker with the run's env and the same selkd build"
     )]
+    // Boxed: a Handshake holds a 96-byte name, and every service name's Result carries this type.
     Mismatch {
-        lp: u32,
-        le: String,
-        lo: u32,
-        la: u32,
-        wp: u32,
-        we: String,
-        wo: u32,
-        wa: u32,
+        learner: Box<Handshake>,
+        worker: Box<Handshake>,
     },
     #[error(
-        "this worker runs env `{env}` with other options than the run: start it with the run's \
-         [env_options] as --env-options (`selkd train` does this)"
+        "this worker runs env `{}` with other options than the run (fingerprint {:x}, the run's \
+         {:x}): start it with the run's [env_options] as --env-options (`selkd train` does this)",
+        worker.env.as_str(), worker.env_options, learner.env_options
     )]
-    OptionsMismatch { env: String },
+    OptionsMismatch {
+        learner: Box<Handshake>,
+        worker: Box<Handshake>,
+    },
 }
 
-/// The worker side of the handshake: does this worker fit the run the learner announced?
-pub fn check_peer(
-    control: &Control,
-    env: &str,
-    env_options: u64,
-    obs_dim: usize,
-    act_dim: usize,
-) -> Result<(), ProtocolError> {
-    if control.protocol_version == PROTOCOL_VERSION
-        && control.env.as_str() == env
-        && control.obs_dim as usize == obs_dim
-        && control.act_dim as usize == act_dim
-    {
-        if control.env_options != env_options {
-            return Err(ProtocolError::OptionsMismatch { env: env.into() });
-        }
-        return Ok(());
+/// The handshake, on either side (a worker checks the learner's [`Control`], the learner each
+/// hello [`Report`]): does the worker fit the run? The error names both sides' values.
+pub fn check_peer(learner: &Handshake, worker: &Handshake) -> Result<(), ProtocolError> {
+    let apart_from_options = |h: &Handshake| Handshake {
+        env_options: 0,
+        ..*h
+    };
+    let (learner, worker) = (Box::new(*learner), Box::new(*worker));
+    match (
+        apart_from_options(&learner) == apart_from_options(&worker),
+        learner.env_options == worker.env_options,
+    ) {
+        (true, true) => Ok(()),
+        (true, false) => Err(ProtocolError::OptionsMismatch { learner, worker }),
+        (false, _) => Err(ProtocolError::Mismatch { learner, worker }),
     }
-    Err(ProtocolError::Mismatch {
-        lp: control.protocol_version,
-        le: control.env.as_str().to_string(),
-        lo: control.obs_dim,
-        la: control.act_dim,
-        wp: PROTOCOL_VERSION,
-        we: env.to_string(),
-        wo: obs_dim as u32,
-        wa: act_dim as u32,
-    })
 }
 
 #[cfg(test)]
@@ -377,21 +461,59 @@ mod tests {
 
     #[test]
     fn handshake_accepts_a_match_and_names_both_sides_of_a_mismatch() {
-        assert!(check_peer(&control(), "pendulum", 7, 3, 1).is_ok());
-        let e = check_peer(&control(), "pendulum", 8, 3, 1)
+        let learner = control().handshake();
+        let check = |env, options, obs, act| {
+            check_peer(&learner, &Handshake::ours(env, options, obs, act))
+                .map_err(|e| e.to_string())
+        };
+        assert!(check("pendulum", 7, 3, 1).is_ok());
+        let e = check("pendulum", 8, 3, 1).unwrap_err();
+        assert!(
+            e.contains("other options")
+                && e.contains("--env-options")
+                && e.contains("fingerprint 8, the run's 7"),
+            "{e}"
+        );
+        let e = check("hopper", 7, 11, 3).unwrap_err();
+        assert!(
+            e.contains("learner has protocol v5, env `pendulum`, obs 3, act 1")
+                && e.contains("worker has protocol v5, env `hopper`, obs 11, act 3"),
+            "{e}"
+        );
+        // A worker of another env is a mismatch of env, even with other options as well.
+        let e = check("hopper", 8, 11, 3).unwrap_err();
+        assert!(e.contains("does not fit"), "{e}");
+        // The learner's side of the same check: a hello from a worker of another build.
+        let hello = Report {
+            protocol_version: PROTOCOL_VERSION - 1,
+            ..report(Handshake::ours("pendulum", 7, 3, 1))
+        };
+        let e = check_peer(&learner, &hello.handshake())
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("other options") && e.contains("--env-options"),
+            e.contains("learner has protocol v5") && e.contains("worker has protocol v4"),
             "{e}"
         );
-        let e = check_peer(&control(), "hopper", 7, 11, 3)
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.contains("`pendulum`, obs 3, act 1") && e.contains("`hopper`, obs 11, act 3"),
-            "{e}"
-        );
+    }
+
+    fn report(h: Handshake) -> Report {
+        Report {
+            kind: ReportKind::Hello,
+            worker: 0,
+            generation: 0,
+            incarnation: 1,
+            protocol_version: h.protocol_version,
+            env: h.env,
+            env_options: h.env_options,
+            obs_dim: h.obs_dim,
+            act_dim: h.act_dim,
+            weights_version: 0,
+            epoch: 0,
+            episodes: 0,
+            mean_return: f64::NAN,
+            success_rate: f64::NAN,
+        }
     }
 
     #[test]
@@ -419,6 +541,52 @@ mod tests {
 }
 
 /// Opening the run's services with the same settings on both sides (iceoryx2 checks they agree).
+///
+/// A worker's side of the transitions service, and the learner's, in one process for brevity
+/// ([`WorkerPorts::open`] and [`LearnerPorts::open`] each open their side, with these):
+///
+/// ```no_run
+/// use selkd_protocol::{services, Services, TransitionHeader, TransitionRow, TRANSITION_BUFFER};
+///
+/// # fn main() -> Result<(), services::Error> {
+/// let svc = Services::new("demo"); // the run id: both sides must use the same one
+/// let actors = 2;
+/// let row = TransitionRow { obs_dim: 3, act_dim: 1 };
+///
+/// // The learner subscribes (it also listens on `to_learner` to be woken).
+/// let learner = services::node(&selkd_protocol::learner_node_name("demo"))?;
+/// let subscriber = services::transitions(&learner, &svc, actors)?
+///     .subscriber_builder()
+///     .buffer_size(TRANSITION_BUFFER)
+///     .create()?;
+///
+/// // A worker publishes one transition and wakes the learner.
+/// let worker = services::node("actor-worker-0")?;
+/// let publisher = services::transitions(&worker, &svc, actors)?
+///     .publisher_builder()
+///     .initial_max_slice_len(row.len())
+///     .create()?;
+/// let wake = services::to_learner(&worker, &svc, actors)?.notifier_builder().create()?;
+/// let mut buf = Vec::new();
+/// row.write(&mut buf, &[1.0, 0.0, 0.5], &[0.25], -0.3, &[0.99, 0.1, 0.4], false, false);
+/// let mut sample = publisher.loan_slice_uninit(row.len())?;
+/// *sample.user_header_mut() = TransitionHeader {
+///     worker: 0,
+///     obs_dim: 3,
+///     act_dim: 1,
+///     episode_return: f64::NAN, // not the episode's last step
+///     ..Default::default()
+/// };
+/// sample.write_from_slice(&buf).send()?;
+/// wake.notify()?;
+///
+/// while let Some(t) = subscriber.receive()? {
+///     let (s, a, r, s2, terminated, _truncated) = row.split(t.payload());
+///     println!("worker {}: {s:?} {a:?} {r} {s2:?} {terminated}", t.user_header().worker);
+/// }
+/// # Ok(())
+/// # }
+/// ```
 pub mod services {
     use super::*;
     use iceoryx2::service::port_factory::{event, publish_subscribe};
@@ -427,6 +595,10 @@ pub mod services {
     pub type PubSub<P, H = ()> = publish_subscribe::PortFactory<ipc::Service, P, H>;
     pub type Event = event::PortFactory<ipc::Service>;
     pub type Error = Box<dyn std::error::Error + Send + Sync>;
+    pub type Publisher<P, H = ()> = iceoryx2::port::publisher::Publisher<ipc::Service, P, H>;
+    pub type Subscriber<P, H = ()> = iceoryx2::port::subscriber::Subscriber<ipc::Service, P, H>;
+    pub type Notifier = iceoryx2::port::notifier::Notifier<ipc::Service>;
+    pub type Listener = iceoryx2::port::listener::Listener<ipc::Service>;
 
     /// A node that leaves signals to the process (the launcher manages them).
     pub fn node(name: &str) -> Result<Node, Error> {
@@ -537,7 +709,7 @@ pub mod services {
 /// wait short (Ctrl-C, SIGTERM) is a wake-up like any other, not an error: the caller's loop then
 /// sees its stop flag and shuts down cleanly.
 pub fn wait_for_wake(
-    listener: &iceoryx2::port::listener::Listener<ipc::Service>,
+    listener: &services::Listener,
     timeout: std::time::Duration,
 ) -> Result<(), iceoryx2::port::listener::ListenerWaitError> {
     use iceoryx2::port::listener::ListenerWaitError;
@@ -552,6 +724,30 @@ pub fn learner_node_name(run_id: &str) -> String {
     format!("learner-{run_id}")
 }
 
+/// A worker's iceoryx2 node name: the learner looks for it to tell a worker that is gone (its
+/// grant can go to the others) from one that is only quiet. Cut to iceoryx2's 128 bytes.
+pub fn worker_node_name(run_id: &str, worker: usize) -> String {
+    let mut name = format!("actor-worker-{worker}-{run_id}");
+    let mut end = name.len().min(128);
+    while !name.is_char_boundary(end) {
+        end -= 1;
+    }
+    name.truncate(end);
+    name
+}
+
 /// A worker's exit code for "this worker cannot join this run" (handshake mismatch, bad
 /// arguments): restarting it would not help, so the launcher fails the run instead.
 pub const EXIT_CANNOT_JOIN: i32 = 2;
+
+/// Logs of the learner and the workers go to stderr (the launcher sends them to files), at
+/// `RUST_LOG`'s levels or `info`; coloured only on a terminal.
+pub fn init_tracing() {
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .init();
+}

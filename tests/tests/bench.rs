@@ -81,12 +81,12 @@ fn bench_learner_with_a_config_benches_its_sizes_and_prices_its_budget() {
     );
     assert!(
         out.contains(
-            "configs/quick.toml: 10500 critic updates in run.total_env_steps = 12000, about "
+            "configs/quick.toml: 10503 critic updates in run.total_env_steps = 12000, about "
         ),
         "{out}"
     );
     assert!(out.lines().last().unwrap().ends_with(" updates/s"), "{out}");
-    // --set applies on top, as in `selkd train`: G = 5 makes 3 500 × 5 updates, on hopper's sizes.
+    // --set applies on top, as in `selkd train`: G = 5 makes 3 501 × 5 updates (the round that completes the warm-up trains too), on hopper's sizes.
     let (ok, out, err) = bench_learner(&[
         "--config",
         "configs/quick.toml",
@@ -97,7 +97,7 @@ fn bench_learner_with_a_config_benches_its_sizes_and_prices_its_budget() {
     ]);
     assert!(ok, "{err}");
     assert!(out.contains("G=5 batch=128 obs=11 act=3"), "{out}");
-    assert!(out.contains(": 17500 critic updates"), "{out}");
+    assert!(out.contains(": 17505 critic updates"), "{out}");
     for (args, want) in [
         (
             vec!["--config", "configs/quick.toml", "--k", "5"],

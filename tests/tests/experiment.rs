@@ -157,6 +157,8 @@ fn a_stopped_experiment_run_again_skips_finished_runs_and_resumes_the_stopped_on
         String::from_utf8_lossy(&out.stderr)
     );
     common::report_check::check_report(&dir, "pendulum", &["a", "b"], &[1, 2], 2, 1500.0);
+    let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert!(!md.contains("Partial"), "every run finished: {md}");
     let _ = std::fs::remove_dir_all(&root);
 }
 
@@ -439,11 +441,31 @@ fn a_failed_run_is_reported_with_its_log_and_the_others_go_on() {
         "the other run did not go on: {stderr}\n{}",
         log(&other, "selkd.log")
     );
+    // Its report says which run is missing, so its table reads as partial.
+    let out = run({
+        let mut c = experiment(&["report"]);
+        c.arg(&dir).args(["--episodes", "1"]);
+        c
+    });
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert!(
+        md.contains("**Partial: 1 of the experiment's 2 runs are finished.** Not yet in these tables and curves: `a/pendulum/seed-1`."),
+        "{md}"
+    );
     let _ = std::fs::remove_dir_all(&root);
 }
 
+/// A run another runner holds is left alone and waited for: once that runner finishes it (here:
+/// a final checkpoint at the budget appears and the lock is released), this runner counts it as
+/// finished and exits 0, as a Slurm array's second task should (it exited 1 before).
 #[test]
-fn a_run_locked_by_another_selkd_is_left_alone() {
+fn a_run_locked_by_another_selkd_is_left_alone_and_its_finish_there_is_success() {
+    use std::io::BufRead;
     use std::os::fd::AsRawFd;
     let text = format!("{ONE}[[method]]\nname = \"a\"\nconfig = \"tiny.toml\"\n");
     let (root, exp) = setup("exp-locked", &text);
@@ -452,22 +474,44 @@ fn a_run_locked_by_another_selkd_is_left_alone() {
     // What another `selkd experiment run` training this run holds.
     let lock = std::fs::File::create(run_dir.join(".selkd.lock")).unwrap();
     assert_eq!(unsafe { libc::flock(lock.as_raw_fd(), libc::LOCK_EX) }, 0);
-    let out = run({
+    let mut child = spawn({
         let mut c = experiment(&["run"]);
         c.arg(&exp).arg("--dir").arg(root.join("runs"));
         c
     });
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut seen = String::new();
+    let mut line = String::new();
+    while !seen.contains("is being trained by another selkd") {
+        line.clear();
+        assert!(stderr.read_line(&mut line).unwrap() > 0, "{seen}");
+        seen.push_str(&line);
+    }
     assert!(
-        stderr.contains("run a/pendulum/seed-1 is being trained by another selkd"),
-        "{stderr}"
+        seen.contains("run a/pendulum/seed-1 is being trained by another selkd")
+            && seen.contains("waiting for it"),
+        "{seen}"
     );
+    std::thread::sleep(Duration::from_secs(2));
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "it did not wait: {seen}"
+    );
+    // The other runner finishes the run.
+    let fin = run_dir.join("checkpoints/final");
+    std::fs::create_dir_all(&fin).unwrap();
+    std::fs::write(fin.join("state.json"), "{\"inserted\": 1000}").unwrap();
+    std::fs::write(run_dir.join("checkpoints/latest"), "final\n").unwrap();
+    drop(lock);
+    let status = child.wait().unwrap();
+    let mut rest = String::new();
+    let _ = std::io::Read::read_to_string(&mut stderr, &mut rest);
+    assert_eq!(status.code(), Some(0), "{seen}{rest}");
+    assert!(rest.contains("1/1 runs finished"), "{rest}");
     assert!(
         !run_dir.join("logs").exists(),
-        "it was started anyway: {stderr}"
+        "it was started anyway: {seen}{rest}"
     );
-    drop(lock);
     let _ = std::fs::remove_dir_all(&root);
 }
 
@@ -511,4 +555,230 @@ config = "tiny.toml"
     );
     assert!(stderr.contains("1 stopped"), "{stderr}");
     let _ = std::fs::remove_dir_all(&root);
+}
+
+/// SELKD-like K = 2 at equal rounds and at equal env steps beside a K = 1 method, in one
+/// experiment file; reported against rounds and critic updates; published, the originals
+/// deleted, and reported again from the published copy alone, with the same tables.
+const BUDGETS: &str = r#"
+total_rounds = 1000
+seeds = [1, 2]
+tasks = ["pendulum"]
+
+[[method]]
+name = "k2-rounds"
+config = "tiny.toml"
+
+[[method]]
+name = "k2-steps"
+config = "tiny.toml"
+total_env_steps = 1000
+
+[[method]]
+name = "k1"
+config = "tiny.toml"
+set = { "algo.actors" = 1 }
+
+[[figure]]
+title = "equal rounds"
+methods = ["k2-rounds", "k1"]
+x = "rounds"
+
+[[figure]]
+title = "equal env steps"
+methods = ["k2-steps", "k1"]
+"#;
+
+#[test]
+fn budgets_in_rounds_and_env_steps_are_reported_on_either_axis_and_from_their_published_copy() {
+    let (root, exp) = setup("exp-budgets", BUDGETS);
+    let dir = root.join("runs");
+    let out = run({
+        let mut c = experiment(&["run"]);
+        c.arg(&exp).arg("--dir").arg(&dir).args(["--jobs", "2"]);
+        c
+    });
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // Budgets counted by hand (tiny.toml: K = 2, warm-up 400 env steps, G = 1): 1 000 rounds
+    // of K = 2 are 2 000 env steps; training starts with round 200, whose transitions complete
+    // the warm-up, so rounds 200 to 1 000 make 801 critic updates; 1 000 env steps are 500
+    // rounds, 301 updates; K = 1: 1 000 rounds, 1 000 env steps, rounds 400 to 1 000, 601.
+    for (m, env_steps, updates) in [
+        ("k2-rounds", 2000, 801.0),
+        ("k2-steps", 1000, 301.0),
+        ("k1", 1000, 601.0),
+    ] {
+        for s in [1, 2] {
+            let r = dir.join(format!("{m}/pendulum/seed-{s}"));
+            assert_eq!(final_inserted(&r), Some(env_steps), "{m} seed {s}");
+            let (h, rows) = metrics(&r);
+            assert_eq!(
+                column(&h, &rows, "critic_updates").last(),
+                Some(&updates),
+                "{m} seed {s}"
+            );
+        }
+    }
+    let cfg = std::fs::read_to_string(dir.join("k2-rounds/pendulum/seed-1/config.toml")).unwrap();
+    assert!(
+        cfg.contains("total_rounds = 1000") && cfg.contains("total_env_steps = 2000"),
+        "{cfg}"
+    );
+    let report = |d: &Path, x: &str, episodes: &str| {
+        run({
+            let mut c = experiment(&["report"]);
+            c.arg(d).args(["--episodes", episodes, "--x", x]);
+            c
+        })
+    };
+    for x in ["env-steps", "rounds", "critic-updates"] {
+        let out = report(&dir, x, "2");
+        assert!(
+            out.status.success(),
+            "{x}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    // Against env steps: Table 2 and a curve point recomputed here from the runs.
+    common::report_check::check_report(
+        &dir,
+        "pendulum",
+        &["k1", "k2-rounds", "k2-steps"],
+        &[1, 2],
+        2,
+        1000.0,
+    );
+    let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert!(md.contains("budgets differ between methods"), "{md}");
+    assert!(
+        md.contains("| k2-rounds | 1000 rounds × K = 2 = 2000 env steps |"),
+        "{md}"
+    );
+    assert!(
+        md.contains("| k2-steps | 1000 env steps = 500 rounds × K = 2 |"),
+        "{md}"
+    );
+    // The equal-rounds figure is drawn against rounds, the equal-env-steps one against env steps.
+    assert!(dir.join("figures/fig6-pendulum-rounds.svg").exists());
+    assert!(dir.join("figures/fig7-pendulum.svg").exists());
+    let svg = std::fs::read_to_string(dir.join("figures/fig6-pendulum-rounds.svg")).unwrap();
+    assert!(svg.contains("rounds (each of the K actors"), "{svg}");
+    // Against rounds: k2-rounds at 500 rounds is its runs at 1 000 env steps.
+    let rounds = common::report_check::csv_rows(&dir.join("figures/curves-pendulum-rounds.csv"));
+    let header = std::fs::read_to_string(dir.join("figures/curves-pendulum-rounds.csv")).unwrap();
+    assert!(header.starts_with("method,rounds,"), "{header}");
+    let ys: Vec<f64> = [1, 2]
+        .iter()
+        .map(|s| {
+            common::report_check::ranked_at(
+                &dir.join(format!("k2-rounds/pendulum/seed-{s}")),
+                1000.0,
+            )
+        })
+        .collect();
+    let p = rounds
+        .iter()
+        .find(|r| r[0] == "k2-rounds" && r[1] == "500")
+        .expect("a point at 500 rounds");
+    assert!(
+        common::report_check::close(p[3].parse().unwrap(), common::report_check::mean(&ys)),
+        "{p:?} {ys:?}"
+    );
+    assert!(dir.join("report-rounds.md").exists() && dir.join("report-critic-updates.md").exists());
+    let updates =
+        std::fs::read_to_string(dir.join("figures/curves-pendulum-critic-updates.csv")).unwrap();
+    assert!(updates.starts_with("method,critic_updates,"), "{updates}");
+
+    // Published, the originals deleted, reported again from the copy: the same tables.
+    let published = root.join("published");
+    let out = run({
+        let mut c = experiment(&["publish"]);
+        c.arg(&dir).arg(&published).args(["--episodes", "2"]);
+        c
+    });
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let one = published.join("k2-rounds/pendulum/seed-1");
+    for f in [
+        "config.toml",
+        "metrics.csv",
+        "state.json",
+        "fresh_eval.json",
+        "progress.json",
+    ] {
+        assert!(one.join(f).is_file(), "{f} not published");
+    }
+    assert!(!one.join("checkpoints").exists() && published.join("experiment.toml").is_file());
+    let state: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(one.join("state.json")).unwrap()).unwrap();
+    assert_eq!(state["inserted"].as_u64(), Some(2000));
+    let size: u64 = walk(&published)
+        .iter()
+        .map(|p| std::fs::metadata(p).unwrap().len())
+        .sum();
+    assert!(size < 2_000_000, "published {size} bytes");
+    let table_before = std::fs::read_to_string(dir.join("table2.csv")).unwrap();
+    let curves_before =
+        std::fs::read_to_string(dir.join("figures/curves-pendulum-rounds.csv")).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    for x in ["env-steps", "rounds"] {
+        let out = report(&published, x, "2");
+        assert!(
+            out.status.success(),
+            "{x}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    assert_eq!(
+        std::fs::read_to_string(published.join("table2.csv")).unwrap(),
+        table_before
+    );
+    assert_eq!(
+        std::fs::read_to_string(published.join("figures/curves-pendulum-rounds.csv")).unwrap(),
+        curves_before
+    );
+    // Without weights the fresh evaluation cannot be redone with another E: one line says so.
+    let out = report(&published, "env-steps", "3");
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && e.contains("--episodes 2") && e.trim().lines().count() == 1,
+        "{e}"
+    );
+    // selkd plot reads the published runs too.
+    let out = run({
+        let mut c = Command::new(bin("selkd"));
+        c.arg("plot")
+            .arg(published.join("k2-rounds/pendulum/seed-1"))
+            .arg(published.join("k2-rounds/pendulum/seed-2"))
+            .args(["--x", "rounds", "--out"])
+            .arg(root.join("p.svg"));
+        c
+    });
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// Every file under `dir`.
+fn walk(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            out.extend(walk(&p));
+        } else {
+            out.push(p);
+        }
+    }
+    out
 }

@@ -115,7 +115,7 @@ fn kill_storm(dir: &Path, id: &str, k: usize, kills: usize, every: Duration) -> 
 }
 
 /// At least ten SIGKILLs of random workers in one run, sync and async: both finish with their
-/// budgets, nothing lost or sent twice (no transition dropped), and the sync one ends exactly as
+/// budgets (sync: 4000 env steps per worker; async: 12 000 in all), nothing lost or sent twice (no transition dropped), and the sync one ends exactly as
 /// its twin, since every restarted worker continues its predecessor's rollout where the learner's
 /// record of it ends.
 #[test]
@@ -164,11 +164,14 @@ fn a_storm_of_worker_kills_loses_nothing_and_a_sync_run_ends_as_its_twin() {
         );
         let (_, _, state) = final_checkpoint(&dir);
         assert_eq!(state["inserted"], 12000, "{mode}");
-        assert_eq!(
-            state["received"],
-            serde_json::json!([4000, 4000, 4000]),
-            "{mode}"
-        );
+        if mode == "sync" {
+            assert_eq!(state["received"], serde_json::json!([4000, 4000, 4000]));
+        } else {
+            // Async: the live workers take a killed one's share (issue 30), so only the sum is
+            // fixed.
+            let received: Vec<u64> = serde_json::from_value(state["received"].clone()).unwrap();
+            assert_eq!(received.iter().sum::<u64>(), 12000, "{received:?}");
+        }
         if mode == "sync" {
             assert_same_run(&dir, &twin, "sync run under a kill storm");
         }

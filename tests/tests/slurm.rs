@@ -132,7 +132,7 @@ fn a_job_array_on_slurm_survives_a_preemption_and_a_time_limit_and_ends_as_its_t
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     assert!(
-        stderr.contains("critic updates/s here, 2800 updates"),
+        stderr.contains("critic updates/s here, 2801 updates"),
         "the time limit comes from a measured rate and the runs' updates: {stderr}"
     );
     let script = runs.join("slurm.sbatch");

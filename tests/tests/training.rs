@@ -3,26 +3,6 @@
 
 mod common;
 use common::*;
-use selkd_envs::make;
-
-/// Mean undiscounted return of a uniform-random policy on Pendulum (the bar to beat).
-fn random_policy_return(episodes: u64) -> f64 {
-    use rand::{Rng, SeedableRng};
-    let mut rng = rand_pcg::Pcg64::seed_from_u64(99);
-    let mut env = make("pendulum").unwrap();
-    let mut total = 0.0;
-    for e in 0..episodes {
-        env.reset(Some(1000 + e));
-        loop {
-            let s = env.step(&[rng.gen_range(-1.0..=1.0)]);
-            total += s.reward;
-            if s.terminated || s.truncated {
-                break;
-            }
-        }
-    }
-    total / episodes as f64
-}
 
 #[test]
 fn selkd_learns_pendulum_well_beyond_a_random_policy() {

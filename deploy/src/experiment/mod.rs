@@ -6,12 +6,15 @@
 //! - [`runner`]: `selkd experiment run`, J child `selkd train` processes at a time, one progress
 //!   line, safe to run again, stopped with a checkpoint on Ctrl-C or SIGTERM.
 //! - [`plan`]: `selkd experiment plan`, the same runs as shell commands and a Slurm job array.
+//! - [`publish`]: `selkd experiment publish`, finished runs' small outputs as data for the
+//!   repository (`docs/results/<experiment>/`), from which the report regenerates.
 //!
 //! The run directories are `DIR/<method>/<task>/seed-<s>/`, ordinary `selkd train` outputs, and
 //! `DIR/experiment.toml` is the experiment as run (config paths made absolute), which
 //! `selkd experiment report` reads.
 
 pub mod plan;
+pub mod publish;
 pub mod runner;
 pub mod spec;
 pub mod state;
@@ -27,8 +30,11 @@ pub enum ExperimentCommand {
     Run(RunArgs),
     /// Write the runs as shell commands (DIR/commands.txt) and, with --slurm, a job array.
     Plan(PlanArgs),
-    /// Tables and figures from an experiment's runs.
+    /// Tables and figures from an experiment's runs (or from their published copy).
     Report(crate::report::ReportArgs),
+    /// Copy each finished run's small outputs (config, metrics, state.json without weights,
+    /// fresh evaluation, progress) to DEST, e.g. docs/results/<experiment>/, for the report.
+    Publish(publish::PublishArgs),
 }
 
 #[derive(Args, Debug)]
@@ -79,6 +85,7 @@ pub fn run(cmd: ExperimentCommand) -> Result<i32> {
     match cmd {
         ExperimentCommand::Run(args) => runner::run(args),
         ExperimentCommand::Plan(args) => plan::run(args).map(|()| 0),
+        ExperimentCommand::Publish(args) => publish::run(&args).map(|()| 0),
         ExperimentCommand::Report(args) => crate::report::run(&args).map(|p| {
             let _ = writeln!(std::io::stderr(), "selkd: wrote {}", p.display());
             0

@@ -182,7 +182,11 @@ async fn schedule(
     let mut tick = tokio::time::interval(Duration::from_secs(1));
     let mut progress = Progress::new(runs.len(), jobs, skipped);
     let mut running: HashMap<usize, Running> = HashMap::new();
-    let (mut failed, mut stopped, mut busy) = (Vec::new(), 0, 0);
+    let (mut failed, mut stopped) = (Vec::new(), 0);
+    // Runs another selkd trains now, tried again every second: that runner finishing one is
+    // success here too (a Slurm array counts exit codes), and one it stops is resumed here.
+    let mut elsewhere: Vec<usize> = Vec::new();
+    let mut announced = std::collections::HashSet::new();
     let mut stop: Option<i32> = None;
     loop {
         while stop.is_none() && running.len() < jobs {
@@ -190,13 +194,15 @@ async fn schedule(
                 break;
             };
             let Some(lock) = lock(&runs[i].dir, runs[i].config.run.dir_mode)? else {
-                progress.clear();
-                eprintln!(
-                    "selkd: run {} is being trained by another selkd (it holds {}); skipping it",
-                    runs[i].id,
-                    runs[i].dir.join(".selkd.lock").display()
-                );
-                busy += 1;
+                if announced.insert(i) {
+                    progress.clear();
+                    eprintln!(
+                        "selkd: run {} is being trained by another selkd (it holds {}); waiting for it to finish or stop",
+                        runs[i].id,
+                        runs[i].dir.join(".selkd.lock").display()
+                    );
+                }
+                elsewhere.push(i);
                 continue;
             };
             // Judged under the lock, not from the list made at the start: a run that waited in
@@ -222,7 +228,7 @@ async fn schedule(
                 },
             );
         }
-        if running.is_empty() {
+        if running.is_empty() && (elsewhere.is_empty() || stop.is_some()) {
             break;
         }
         tokio::select! {
@@ -243,7 +249,8 @@ async fn schedule(
                 continue;
             }
             _ = tick.tick() => {
-                progress.show(runs, &running, todo.len(), failed.len());
+                progress.show(runs, &running, todo.len() + elsewhere.len(), failed.len());
+                todo.extend(elsewhere.drain(..));
                 continue;
             }
         }
@@ -262,17 +269,17 @@ async fn schedule(
     progress.clear();
     let done = progress.done;
     eprintln!(
-        "selkd: experiment: {done}/{} runs finished ({skipped} already were), {} failed, {stopped} stopped, {busy} trained elsewhere, {} not started",
+        "selkd: experiment: {done}/{} runs finished ({skipped} already were), {} failed, {stopped} stopped, {} not started",
         runs.len(),
         failed.len(),
-        todo.len()
+        todo.len() + elsewhere.len()
     );
     if !failed.is_empty() {
         eprintln!("selkd: failed runs: {}", failed.join(", "));
     }
     Ok(match stop {
         Some(sig) => 128 + sig,
-        None if !failed.is_empty() || stopped + busy > 0 => 1,
+        None if !failed.is_empty() || stopped > 0 => 1,
         None => 0,
     })
 }

@@ -20,9 +20,13 @@ pub struct Experiment {
     /// One sentence for the report's heading.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub description: Option<String>,
-    /// Every run's budget (`run.total_env_steps`: transitions of all actors together).
-    #[serde(default)]
+    /// Every run's budget in env steps (`run.total_env_steps`: transitions of all actors
+    /// together); or `total_rounds`, never both.
+    #[serde(default, skip_serializing_if = "is_zero")]
     pub total_env_steps: u64,
+    /// Every run's budget in rounds (`run.total_rounds`: each of the K actors takes one step).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub total_rounds: u64,
     /// Every (method, task) pair runs once per seed (`run.seed`).
     #[serde(default)]
     pub seeds: Vec<u64>,
@@ -55,6 +59,34 @@ pub struct Method {
     /// This method's overrides, applied after the common and per-task ones.
     #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
     pub set: toml::Table,
+    /// This method's own budget in env steps, instead of the experiment's (one file can then
+    /// hold SELKD at equal env steps and at equal rounds beside the same baselines).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub total_env_steps: u64,
+    /// This method's own budget in rounds, instead of the experiment's.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub total_rounds: u64,
+}
+
+fn is_zero(v: &u64) -> bool {
+    *v == 0
+}
+
+/// A budget and its unit, as the experiment (or a method) sets it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Budget {
+    EnvSteps(u64),
+    Rounds(u64),
+}
+
+impl Budget {
+    /// The `--set` that gives a run this budget.
+    pub fn set(self) -> String {
+        match self {
+            Budget::EnvSteps(n) => format!("run.total_env_steps={n}"),
+            Budget::Rounds(n) => format!("run.total_rounds={n}"),
+        }
+    }
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -62,18 +94,29 @@ pub struct Method {
 pub struct Figure {
     pub title: String,
     pub methods: Vec<String>,
+    /// This figure's x axis (`env-steps`, `rounds`, `critic-updates`, `wall-clock`); absent:
+    /// the report's `--x`. A figure at equal rounds is drawn against rounds, one at equal env
+    /// steps against env steps.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub x: Option<String>,
 }
 
-/// The keys an experiment sets itself from `tasks`, `seeds` and `total_env_steps`.
-const OWNED_KEYS: [(&str, &str); 3] = [
+/// The x axes a figure can be drawn against (`selkd experiment report --x`, `[[figure]] x`).
+pub const X_AXES: [&str; 4] = ["env-steps", "rounds", "critic-updates", "wall-clock"];
+
+/// The keys an experiment sets itself from `tasks`, `seeds` and its (or a method's) budget.
+const OWNED_KEYS: [(&str, &str); 4] = [
     ("run.env", "tasks"),
     ("run.seed", "seeds"),
     ("run.total_env_steps", "total_env_steps"),
+    ("run.total_rounds", "total_rounds"),
 ];
 
 /// Keys whose change does not make an existing run directory another run: the libtorch thread
-/// count follows `--jobs`, and a raised budget is how a finished run is trained further.
-pub const KEYS_FREE_TO_CHANGE: [&str; 2] = ["run.threads", "run.total_env_steps"];
+/// count follows `--jobs`, and a raised budget (in either unit) is how a finished run is
+/// trained further.
+pub const KEYS_FREE_TO_CHANGE: [&str; 3] =
+    ["run.threads", "run.total_env_steps", "run.total_rounds"];
 
 /// One (method, task, seed): an ordinary `selkd train` run directory.
 #[derive(Clone, Debug)]
@@ -138,8 +181,16 @@ impl Experiment {
         if self.seeds.is_empty() {
             bail!("no seeds: set seeds = [1, 2, 3, ...]");
         }
-        if self.total_env_steps == 0 {
-            bail!("total_env_steps must be at least 1 (every run's budget, env steps of all actors together)");
+        match (self.total_env_steps, self.total_rounds) {
+            (0, 0) if self.methods.iter().all(|m| m.total_env_steps > 0 || m.total_rounds > 0) => {}
+            (0, 0) => bail!("total_env_steps must be at least 1 (every run's budget, env steps of all actors together), or set total_rounds (rounds: each of the K actors takes one step)"),
+            (s, r) if s > 0 && r > 0 => bail!("total_env_steps = {s} and total_rounds = {r} both set every run's budget; set only one (a method may set its own)"),
+            _ => {}
+        }
+        for m in &self.methods {
+            if m.total_env_steps > 0 && m.total_rounds > 0 {
+                bail!("method `{}`: total_env_steps = {} and total_rounds = {} both set its budget; set only one", m.name, m.total_env_steps, m.total_rounds);
+            }
         }
         let mut names = BTreeSet::new();
         for m in &self.methods {
@@ -161,9 +212,15 @@ impl Experiment {
         let known = selkd_envs::names();
         let mut tasks = BTreeSet::new();
         for t in &self.tasks {
-            if !known.contains(&t.as_str()) {
+            if t.starts_with(selkd_gymnasium::PREFIX) {
+                // Gymnasium's registry knows its ids: make it once (with the runs' options,
+                // checked again per run when each config is validated).
+                if let Err(e) = selkd_envs::make_with(t, &selkd_envs::EnvOptions::new()) {
+                    bail!("tasks: {e}");
+                }
+            } else if !known.contains(&t.as_str()) {
                 bail!(
-                    "tasks: `{t}` is not a known env; choose from: {}",
+                    "tasks: `{t}` is not a known env; choose from: {}, or gymnasium:<id>",
                     known.join(", ")
                 );
             }
@@ -183,6 +240,13 @@ impl Experiment {
             }
         }
         for f in &self.figures {
+            if let Some(x) = f.x.as_deref().filter(|x| !X_AXES.contains(x)) {
+                bail!(
+                    "figure \"{}\": x = \"{x}\" is not an axis; choose one of: {}",
+                    f.title,
+                    X_AXES.join(", ")
+                );
+            }
             for m in &f.methods {
                 if !names.contains(m.as_str()) {
                     bail!(
@@ -217,6 +281,19 @@ impl Experiment {
             }
         }
         Ok(())
+    }
+
+    /// A method's budget: its own, else the experiment's.
+    pub fn budget(&self, method: &Method) -> Budget {
+        if method.total_rounds > 0 {
+            Budget::Rounds(method.total_rounds)
+        } else if method.total_env_steps > 0 {
+            Budget::EnvSteps(method.total_env_steps)
+        } else if self.total_rounds > 0 {
+            Budget::Rounds(self.total_rounds)
+        } else {
+            Budget::EnvSteps(self.total_env_steps)
+        }
     }
 
     /// Does any of the experiment's overrides set `key` for this (method, task)?
@@ -265,7 +342,7 @@ impl Experiment {
                     }
                     sets.push(format!("run.env={task}"));
                     sets.push(format!("run.seed={seed}"));
-                    sets.push(format!("run.total_env_steps={}", self.total_env_steps));
+                    sets.push(self.budget(m).set());
                     if !self.sets_key(m, task, "run.threads") {
                         sets.push(format!("run.threads={threads}"));
                     }
@@ -368,10 +445,13 @@ pub fn prepare(
     // Split the cores over the runs that will train at once, so J runs never ask for more
     // learner threads than there are cores: oversubscribed, a run's update rate collapsed to
     // 3–8 updates/s, against 65–75 with one thread each.
-    let at_once = ids
+    // Each run's budget in env steps needs its resolved config (a rounds budget is × K); the
+    // thread count does not change it.
+    let at_once = exp
+        .resolve(dir, 1)?
         .iter()
-        .filter(|id| only.is_empty() || only.contains(id))
-        .filter(|id| state(&dir.join(id.as_str()), exp.total_env_steps) != State::Finished)
+        .filter(|r| only.is_empty() || only.contains(&r.id))
+        .filter(|r| state(&r.dir, r.config.run.total_env_steps) != State::Finished)
         .count()
         .min(jobs)
         .max(1);
@@ -411,8 +491,78 @@ mod tests {
         assert!(flatten(&a).contains(&("run.mode".into(), "\"async\"".into())));
     }
 
+    fn write_experiment(tag: &str, text: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("selkd-spec-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        let quick = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/quick.toml");
+        std::fs::copy(quick, d.join("quick.toml")).unwrap();
+        let path = d.join("e.toml");
+        std::fs::write(&path, text).unwrap();
+        path
+    }
+
+    /// SELKD at equal rounds and at equal env steps beside one baseline, in one file: each
+    /// method's runs get their own budget (quick.toml has K = 3: 2 000 rounds are 6 000 env
+    /// steps), and the file reads back the same.
+    #[test]
+    fn methods_that_differ_only_in_their_budget_coexist() {
+        let path = write_experiment(
+            "budgets",
+            "total_rounds = 2000\nseeds = [1]\ntasks = [\"pendulum\"]\n\
+             [[method]]\nname = \"selkd-rounds\"\nconfig = \"quick.toml\"\n\
+             [[method]]\nname = \"selkd-steps\"\nconfig = \"quick.toml\"\ntotal_env_steps = 2000\n\
+             [[method]]\nname = \"sac\"\nconfig = \"quick.toml\"\nset = { \"algo.actors\" = 1 }\n\
+             [[figure]]\ntitle = \"equal rounds\"\nmethods = [\"selkd-rounds\", \"sac\"]\nx = \"rounds\"\n",
+        );
+        let exp = Experiment::load(&path).unwrap();
+        let runs = exp.resolve(Path::new("/nonexistent"), 1).unwrap();
+        let got: Vec<(String, u64, u64)> = runs
+            .iter()
+            .map(|r| {
+                (
+                    r.id.clone(),
+                    r.config.run.total_env_steps,
+                    r.config.run.total_rounds,
+                )
+            })
+            .collect();
+        assert_eq!(
+            got,
+            vec![
+                ("selkd-rounds/pendulum/seed-1".into(), 6000, 2000),
+                ("selkd-steps/pendulum/seed-1".into(), 2000, 0),
+                ("sac/pendulum/seed-1".into(), 2000, 2000),
+            ]
+        );
+        let back: Experiment = toml::from_str(&exp.to_toml()).unwrap();
+        assert_eq!(back, exp);
+        let _ = std::fs::remove_dir_all(path.parent().unwrap());
+    }
+
+    #[test]
+    fn two_budgets_and_unknown_axes_are_one_line_errors() {
+        for (text, says) in [
+            ("total_env_steps = 10\ntotal_rounds = 10\n", "total_env_steps = 10 and total_rounds = 10 both set"),
+            ("total_rounds = 10\n[[method]]\nname = \"m\"\nconfig = \"quick.toml\"\ntotal_env_steps = 5\ntotal_rounds = 5\n", "method `m`: total_env_steps = 5 and total_rounds = 5"),
+            ("total_rounds = 10\n[[method]]\nname = \"m\"\nconfig = \"quick.toml\"\nset = { \"run.total_rounds\" = 5 }\n", "set by the experiment's `total_rounds`"),
+            ("total_rounds = 10\n[[method]]\nname = \"m\"\nconfig = \"quick.toml\"\n[[figure]]\ntitle = \"f\"\nmethods = [\"m\"]\nx = \"time\"\n", "x = \"time\" is not an axis"),
+        ] {
+            let mut text = format!("seeds = [1]\ntasks = [\"pendulum\"]\n{text}");
+            if !text.contains("[[method]]") {
+                text.push_str("[[method]]\nname = \"m\"\nconfig = \"quick.toml\"\n");
+            }
+            let path = write_experiment("bad", &text);
+            let e = format!("{:#}", Experiment::load(&path).unwrap_err());
+            assert!(e.contains(says) && !e.contains('\n'), "{e}");
+            let _ = std::fs::remove_dir_all(path.parent().unwrap());
+        }
+    }
+
     #[test]
     fn every_shipped_experiment_resolves_every_run() {
+        // As selkd's main does: experiments/evidence.toml's tasks are Gymnasium's.
+        selkd_gymnasium::register();
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../experiments");
         let mut seen = 0;
         for entry in std::fs::read_dir(&root).unwrap() {
@@ -427,7 +577,18 @@ mod tests {
                     exp.methods.len() * exp.tasks.len() * exp.seeds.len()
                 );
                 for r in &runs {
-                    assert_eq!(r.config.run.total_env_steps, exp.total_env_steps);
+                    let method = exp
+                        .methods
+                        .iter()
+                        .find(|m| r.id.starts_with(&format!("{}/", m.name)))
+                        .unwrap();
+                    match exp.budget(method) {
+                        Budget::EnvSteps(n) => assert_eq!(r.config.run.total_env_steps, n),
+                        Budget::Rounds(n) => assert_eq!(
+                            r.config.run.total_env_steps,
+                            n * r.config.algo.actors as u64
+                        ),
+                    }
                     assert_eq!(r.id.split('/').nth(1), Some(r.config.run.env.as_str()));
                 }
                 // The written form reads back as the same experiment (the report reads it).

@@ -1,4 +1,4 @@
-//! Lining runs up on env steps, and the statistics over seeds: shared by `selkd experiment
+//! Lining runs up on env steps (or rounds, critic updates, wall-clock: any increasing x), and the statistics over seeds: shared by `selkd experiment
 //! report` and `selkd plot`, so that both draw the same curve from the same runs.
 //!
 //! Runs are never lined up by CSV row: two seeds (or two methods) need not have evaluated at the
@@ -61,6 +61,10 @@ fn epoch_length(steps: &[f64]) -> Option<f64> {
         .min_by(f64::total_cmp)
 }
 
+/// The most grid points a curve is interpolated onto (a run of 300k env steps evaluated every
+/// 1 000 has 300).
+const MAX_POINTS: f64 = 2000.0;
+
 /// Every multiple of the shortest epoch length (over all curves) in `[max first, min last]`:
 /// the env steps that every curve covers. A single epoch per curve gives that one point.
 pub fn common_grid(curves: &[&[f64]]) -> Result<Vec<f64>> {
@@ -81,6 +85,14 @@ pub fn common_grid(curves: &[&[f64]]) -> Result<Vec<f64>> {
         .min_by(f64::total_cmp)
     else {
         return Ok(vec![lo]);
+    };
+    // Wall-clock seconds (and async critic updates) have no common epoch length: two epochs
+    // a fraction of a second apart would make a grid of millions of points. Beyond
+    // MAX_POINTS, a round step of about (hi − lo) / MAX_POINTS is fine enough for any figure.
+    let step = if (hi - lo) / step > MAX_POINTS {
+        super::figure::nice_step(hi - lo, MAX_POINTS as usize)
+    } else {
+        step
     };
     // A small tolerance: env steps are integers, but lo / step need not divide exactly in f64.
     let first = (lo / step - 1e-9).ceil() as i64;
@@ -188,6 +200,16 @@ mod tests {
             second_half_mean(&grid, &[100.0, 3.0, 4.0, 8.0], 2000.0),
             5.0
         );
+    }
+
+    #[test]
+    fn an_irregular_axis_gets_a_round_step_not_millions_of_points() {
+        // Wall-clock: epochs 0.001 s apart once, over 100 000 s: the step becomes 50 s
+        // (100 000 / 2 000 = 50 is already round), 0 … 100 000 in 2 001 points.
+        let a = [0.0, 0.001, 50_000.0, 100_000.0];
+        let grid = common_grid(&[&a]).unwrap();
+        assert_eq!(grid.len(), 2001);
+        assert_eq!((grid[1], grid[2000]), (50.0, 100_000.0));
     }
 
     #[test]

@@ -71,6 +71,28 @@ pub fn fresh_eval(run: &Run, episodes: usize) -> Result<FreshEval> {
             }
         }
     }
+    if !ckpt.exists() {
+        // A published run (`selkd experiment publish`) has no weights: its fresh evaluation is
+        // the data, and it can only be read, not redone with another E.
+        let old: FreshEval = std::fs::read_to_string(&cache)
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok())
+            .with_context(|| {
+                format!(
+                    "{} has neither {CHECKPOINT} nor a readable fresh_eval.json, so Table 2 cannot score it",
+                    run.dir.display()
+                )
+            })?;
+        if old.seeds != seeds {
+            anyhow::bail!(
+                "{} has no checkpoint (published data) and its fresh_eval.json holds {} episodes, not --episodes {episodes}; report with --episodes {}",
+                run.dir.display(),
+                old.seeds.len(),
+                old.seeds.len()
+            );
+        }
+        return Ok(old);
+    }
     let loaded = load_actor(&ckpt, None)
         .with_context(|| format!("loading the ranked actor of {}", ckpt.display()))?;
     let options = run

@@ -14,7 +14,7 @@
 
 pub mod align;
 pub mod figure;
-mod fresh;
+pub(crate) mod fresh;
 pub mod runs;
 mod table;
 
@@ -22,8 +22,8 @@ use align::{second_half_mean, Aligned};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use figure::{colour, BarChart, LineChart, Series};
-use runs::{check_same_config, Metric, Run};
-use std::collections::BTreeMap;
+use runs::{check_same_config, Metric, Run, XAxis};
+use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use table::Row;
@@ -35,6 +35,10 @@ pub struct ReportArgs {
     /// Fresh evaluation episodes per run for Table 2's scores.
     #[arg(long, default_value_t = 20)]
     pub episodes: usize,
+    /// What the curves are drawn against (a `[[figure]]` with its own `x` keeps it). Other
+    /// than env-steps, the report is DIR/report-<x>.md and its figures' names end in -<x>.
+    #[arg(long, value_enum, default_value = "env-steps")]
+    pub x: XAxis,
 }
 
 /// The runs of one method on one task.
@@ -57,6 +61,8 @@ struct Task<'a> {
 struct FigureGroup {
     title: String,
     methods: Vec<String>,
+    /// Its own x axis (`x = "rounds"`), else the report's `--x`.
+    x: Option<XAxis>,
 }
 
 fn figure_groups(dir: &Path) -> Result<Vec<FigureGroup>> {
@@ -101,9 +107,65 @@ fn figure_groups(dir: &Path) -> Result<Vec<FigureGroup>> {
                 .get("title")
                 .and_then(|t| t.as_str())
                 .map_or_else(|| format!("Figure {}", 6 + i), str::to_string);
-            Ok(FigureGroup { title, methods })
+            let x = match f.get("x") {
+                None => None,
+                Some(v) => Some(v.as_str().and_then(XAxis::parse).with_context(|| {
+                    format!(
+                        "{}: [[figure]] {}: x = {v} is not an axis; choose one of: {}",
+                        path.display(),
+                        i + 1,
+                        crate::experiment::spec::X_AXES.join(", ")
+                    )
+                })?),
+            };
+            Ok(FigureGroup { title, methods, x })
         })
         .collect()
+}
+
+/// The runs `experiment.toml` names (`<method>/<task>/seed-<s>`), when the directory has one: the
+/// report says which of them are not (yet) finished, so a partial table reads as partial.
+fn expected_runs(dir: &Path) -> Result<Option<Vec<String>>> {
+    let path = dir.join("experiment.toml");
+    if !path.exists() {
+        return Ok(None);
+    }
+    let t: toml::Table = std::fs::read_to_string(&path)
+        .with_context(|| format!("reading {}", path.display()))?
+        .parse()
+        .with_context(|| format!("reading {}", path.display()))?;
+    let strings = |v: Option<&toml::Value>| -> Vec<String> {
+        v.and_then(|v| v.as_array())
+            .map(|a| {
+                a.iter()
+                    .filter_map(|x| {
+                        x.as_str()
+                            .map(str::to_string)
+                            .or_else(|| x.as_integer().map(|i| i.to_string()))
+                    })
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let methods: Vec<String> = t
+        .get("method")
+        .and_then(|m| m.as_array())
+        .map(|a| {
+            a.iter()
+                .filter_map(|m| m.get("name").and_then(|n| n.as_str()).map(str::to_string))
+                .collect()
+        })
+        .unwrap_or_default();
+    let (tasks, seeds) = (strings(t.get("tasks")), strings(t.get("seeds")));
+    let mut ids = Vec::new();
+    for seed in &seeds {
+        for task in &tasks {
+            for method in &methods {
+                ids.push(format!("{method}/{task}/seed-{seed}"));
+            }
+        }
+    }
+    Ok((!ids.is_empty()).then_some(ids))
 }
 
 /// Refuses a task whose runs (across methods) differ in env or env options.
@@ -141,15 +203,13 @@ fn slug(s: &str) -> String {
         .collect()
 }
 
-/// The ranked actor's curve and the actors' mean, per seed, on one grid.
-fn curves(runs: &[&Run], metric: Metric) -> Result<(Aligned, Aligned)> {
+/// The ranked actor's curve and the actors' mean, per seed, on one grid of `x`.
+fn curves(runs: &[&Run], metric: Metric, x: XAxis) -> Result<(Aligned, Aligned)> {
     let ranked: Vec<Vec<f64>> = runs.iter().map(|r| r.metrics.ranked(metric)).collect();
     let means: Vec<Vec<f64>> = runs.iter().map(|r| r.metrics.actor_mean(metric)).collect();
+    let xs = runs.iter().map(|r| r.xs(x)).collect::<Result<Vec<_>>>()?;
     let pairs = |v: &[Vec<f64>]| -> Vec<(Vec<f64>, Vec<f64>)> {
-        runs.iter()
-            .zip(v)
-            .map(|(r, y)| (r.metrics.steps.clone(), y.clone()))
-            .collect()
+        xs.iter().cloned().zip(v.iter().cloned()).collect()
     };
     let align = |p: Vec<(Vec<f64>, Vec<f64>)>| {
         let refs: Vec<(&[f64], &[f64])> = p.iter().map(|(x, y)| (&x[..], &y[..])).collect();
@@ -163,6 +223,26 @@ fn curves(runs: &[&Run], metric: Metric) -> Result<(Aligned, Aligned)> {
     ))
 }
 
+/// Where the second half of training begins on axis `x`, for the stability measure: half the
+/// budget in env steps or rounds; on critic updates and wall-clock, which have no budget of
+/// their own, half the range all seeds cover (`end`, the grid's last point).
+fn half_budget(run: &Run, x: XAxis, end: f64) -> f64 {
+    match x {
+        XAxis::EnvSteps => run.budget as f64,
+        XAxis::Rounds => run.budget as f64 / run.actors as f64,
+        XAxis::CriticUpdates | XAxis::WallClock => end,
+    }
+}
+
+/// A figure's file stem: `fig3-hopper` against env steps, `fig3-hopper-rounds` against rounds.
+fn stem_for(stem: &str, x: XAxis) -> String {
+    if x == XAxis::EnvSteps {
+        stem.to_string()
+    } else {
+        format!("{stem}-{}", x.name())
+    }
+}
+
 /// Figures 3, 4 and 5 (or a `[[figure]]` group's) for one task: returns the Markdown that links them.
 fn task_figures(
     task: &Task,
@@ -170,7 +250,9 @@ fn task_figures(
     label: &str,
     stem: &str,
     figdir: &Path,
+    x: XAxis,
 ) -> Result<String> {
+    let stem = &stem_for(stem, x);
     let metric = if task.rate {
         Metric::Success
     } else {
@@ -190,11 +272,11 @@ fn task_figures(
     }
     let mut lines = Vec::new();
     // Figure 3's and 4's numbers, for whoever wants to check or redraw them.
-    let mut data = String::from("method,env_steps,seeds,mean,std,actors_mean\n");
+    let mut data = format!("method,{},seeds,mean,std,actors_mean\n", x.column());
     let mut stds = Vec::new();
     let mut bars = Vec::new();
     for g in &groups {
-        let (ranked, mean) = curves(&g.finished, metric)?;
+        let (ranked, mean) = curves(&g.finished, metric, x)?;
         let (m, sd) = (ranked.mean(), ranked.std());
         let n = g.finished.len();
         let seeds = if n == 1 {
@@ -203,15 +285,15 @@ fn task_figures(
             format!("{n} seeds")
         };
         let am = mean.mean();
-        for (i, x) in ranked.grid.iter().enumerate() {
+        for (i, at) in ranked.grid.iter().enumerate() {
             // The actors' mean has its own grid only if a run lacks some actor's column; both
             // come from the same steps, so they match.
             let a = mean
                 .grid
                 .iter()
-                .position(|g| g == x)
+                .position(|g| g == at)
                 .map_or(f64::NAN, |j| am[j]);
-            let _ = writeln!(data, "{},{x},{n},{},{},{a}", g.method, m[i], sd[i]);
+            let _ = writeln!(data, "{},{at},{n},{},{},{a}", g.method, m[i], sd[i]);
         }
         lines.push(Series {
             label: if n == 1 {
@@ -254,13 +336,34 @@ fn task_figures(
         ));
         bars.push((
             format!("{} ({seeds})", g.method),
-            second_half_mean(&ranked.grid, &sd, g.finished[0].budget as f64),
+            second_half_mean(
+                &ranked.grid,
+                &sd,
+                half_budget(g.finished[0], x, ranked.grid.last().copied().unwrap_or(0.0)),
+            ),
             colour(g.index),
         ));
     }
     let what = if task.rate { "success rate" } else { "return" };
     let y_range = task.rate.then_some((0.0, 1.0));
-    let x_label = "env steps (all actors together)".to_string();
+    // Methods with different budgets on one axis (SELKD at equal rounds beside a K = 1
+    // baseline reaches K× its env steps): the axis label says so, the curves show it.
+    let budgets: Vec<String> = groups
+        .iter()
+        .map(|g| format!("{}: {}", g.method, g.finished[0].budget_text()))
+        .collect();
+    let x_label = if groups.iter().all(|g| {
+        g.finished[0].budget == groups[0].finished[0].budget
+            && g.finished[0].actors == groups[0].finished[0].actors
+    }) {
+        format!(
+            "{}; budget {}",
+            x.label(),
+            groups[0].finished[0].budget_text()
+        )
+    } else {
+        format!("{}; budgets differ: {}", x.label(), budgets.join("; "))
+    };
     let mut md = String::new();
     let curve = LineChart {
         title: format!(
@@ -280,12 +383,13 @@ fn task_figures(
         task.name
     );
     if methods.is_none() {
-        let c = figdir.join(format!("curves-{}.csv", slug(&task.name)));
+        let name = stem_for(&format!("curves-{}", slug(&task.name)), x);
+        let c = figdir.join(format!("{name}.csv"));
         std::fs::write(&c, &data).with_context(|| format!("writing {}", c.display()))?;
         let _ = writeln!(
             md,
-            "Curve data (Figures 3 and 4): [curves-{0}.csv](figures/curves-{0}.csv)\n",
-            slug(&task.name)
+            "Curve data (Figures 3 and 4, against {}): [{name}.csv](figures/{name}.csv)\n",
+            x.column()
         );
         let std_chart = LineChart {
             title: format!(
@@ -298,7 +402,7 @@ fn task_figures(
             y_range: None,
             from_zero: true,
         };
-        let s4 = format!("fig4-{}", slug(&task.name));
+        let s4 = stem_for(&format!("fig4-{}", slug(&task.name)), x);
         figure::write(&std_chart.svg(), &figdir.join(&s4))?;
         let bar = BarChart {
             title: format!(
@@ -308,7 +412,7 @@ fn task_figures(
             y_label: format!("mean sample std ({what})"),
             bars,
         };
-        let s5 = format!("fig5-{}", slug(&task.name));
+        let s5 = stem_for(&format!("fig5-{}", slug(&task.name)), x);
         figure::write(&bar.svg(), &figdir.join(&s5))?;
         let _ = writeln!(
             md,
@@ -354,6 +458,23 @@ fn rows(
                 .iter()
                 .map(|r| (r.seed, r.env_steps(), r.budget))
                 .collect(),
+            budget: {
+                let r = g.finished.first().or(g.short.first()).copied();
+                r.map_or(
+                    table::Budget {
+                        env_steps: 0,
+                        rounds: 0,
+                        actors: 1,
+                        in_rounds: false,
+                    },
+                    |r| table::Budget {
+                        env_steps: r.budget,
+                        rounds: r.budget.div_ceil(r.actors),
+                        actors: r.actors,
+                        in_rounds: r.budget_rounds > 0,
+                    },
+                )
+            },
         })
         .collect()
 }
@@ -425,6 +546,27 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
     std::fs::create_dir_all(&figdir).with_context(|| format!("creating {}", figdir.display()))?;
     let mut md = String::new();
     let _ = writeln!(md, "# Experiment report: `{}`\n", dir.display());
+    if let Some(expected) = expected_runs(dir)? {
+        let done: BTreeSet<String> = all
+            .iter()
+            .filter(|(_, _, r)| r.finished())
+            .map(|(m, t, r)| format!("{m}/{t}/seed-{}", r.seed))
+            .collect();
+        let missing: Vec<&String> = expected.iter().filter(|id| !done.contains(*id)).collect();
+        if !missing.is_empty() {
+            let _ = writeln!(
+                md,
+                "**Partial: {} of the experiment's {} runs are finished.** Not yet in these tables and curves: {}.\n",
+                expected.len() - missing.len(),
+                expected.len(),
+                missing
+                    .iter()
+                    .map(|id| format!("`{id}`"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+    }
     let budgets: Vec<String> = tasks
         .iter()
         .flat_map(|t| {
@@ -433,7 +575,7 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
                     .finished
                     .first()
                     .or(g.short.first())
-                    .map_or(0, |r| r.budget);
+                    .map_or_else(String::new, |r| r.budget_text());
                 format!("{} on `{}`: {b}", g.method, t.name)
             })
         })
@@ -458,14 +600,14 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
         .collect();
     let _ = writeln!(
         md,
-        "- **Env-step budget** (`run.total_env_steps`, transitions of all actors together): {}.",
+        "- **Budget** (`run.total_env_steps`, env steps: transitions of all actors together; or `run.total_rounds`, rounds: each of the K actors takes one step, so env steps = rounds × K; at equal env steps SELKD's actors get K× fewer updates, at equal rounds SELKD gets K× the data): {}.",
         budgets.join("; ")
     );
     let _ = writeln!(md, "- **Seeds**: {}.", seeds.join("; "));
     let _ = writeln!(md, "- **Score** (Table 2): the actor that the final checkpoint's ranking picks (the actor SELKD executes), re-evaluated with deterministic actions on **E = {} fresh episodes** (`fresh_seed(0..{})`: the same episodes for every method and seed, none played during training, so the pick's luck does not inflate the score), on the run's env and `[env_options]`. The score is the mean undiscounted return, or the success rate for tasks that report success. Each run's episodes are in `RUN/fresh_eval.json`.", args.episodes, args.episodes);
     let _ = writeln!(md, "- **mean ± std** is over seeds; std is the **sample** standard deviation (divisor n − 1; n/a for one seed). Only finished runs (final checkpoint at the budget) are averaged; a † marks a method with runs that stopped short (footnotes give their env steps).");
-    let _ = writeln!(md, "- **Curves** (Figures 3, 4, 6–9): each seed's in-run evaluation of its ranked actor (the `best` column of metrics.csv picks the actor per epoch) interpolated linearly onto a common grid of env steps (every multiple of the shortest epoch length within the range all seeds cover), then mean ± ½ std over seeds; dashed: the mean over a method's actors. Figure 5: the mean, over grid points in the second half of the budget, of the std across seeds (the paper's stability measure; lower is more stable).\n");
-    let _ = writeln!(md, "## Table 2: final scores\n");
+    let _ = writeln!(md, "- **Curves** (Figures 3, 4, 6–9), drawn against **{}** unless a figure names its own axis: each seed's in-run evaluation of its ranked actor (the `best` column of metrics.csv picks the actor per epoch) interpolated linearly onto a common grid of that axis (every multiple of the shortest epoch length within the range all seeds cover), then mean ± ½ std over seeds; dashed: the mean over a method's actors. Figure 5: the mean, over grid points in the second half of the budget (on critic updates and wall-clock: of the range all seeds cover), of the std across seeds (the paper's stability measure; lower is more stable).\n", args.x.label());
+    let _ = writeln!(md, "## Table 2: final scores, at each method's budget (the budget column; the heading says when all are equal)\n");
     let mut csv_tasks = Vec::new();
     for t in &tasks {
         let r = rows(t, &fresh, None);
@@ -484,7 +626,7 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
     for t in &tasks {
         let _ = writeln!(md, "### `{}`\n", t.name);
         let stem = format!("fig3-{}", slug(&t.name));
-        md.push_str(&task_figures(t, None, "Figure 3", &stem, &figdir)?);
+        md.push_str(&task_figures(t, None, "Figure 3", &stem, &figdir, args.x)?);
     }
     for (i, f) in figures.iter().enumerate() {
         let n = 6 + i;
@@ -509,6 +651,7 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
                 &format!("Figure {n}"),
                 &stem,
                 &figdir,
+                f.x.unwrap_or(args.x),
             )?);
             let r = rows(t, &fresh, Some(&f.methods));
             if !r.is_empty() {
@@ -517,7 +660,10 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
             }
         }
     }
-    let out = dir.join("report.md");
+    let out = dir.join(match args.x {
+        XAxis::EnvSteps => "report.md".to_string(),
+        x => format!("report-{}.md", x.name()),
+    });
     std::fs::write(&out, md).with_context(|| format!("writing {}", out.display()))?;
     Ok(out)
 }
@@ -540,6 +686,7 @@ mod tests {
         let e = run(&ReportArgs {
             dir: d.clone(),
             episodes: 2,
+            x: XAxis::EnvSteps,
         })
         .unwrap_err();
         let e = format!("{e:#}");
@@ -553,7 +700,8 @@ mod tests {
             "{:#}",
             run(&ReportArgs {
                 dir: d.to_path_buf(),
-                episodes: 2
+                episodes: 2,
+                x: XAxis::EnvSteps,
             })
             .unwrap_err()
         )

@@ -26,6 +26,62 @@ impl Metric {
     }
 }
 
+/// What the curves are drawn against (`--x`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum XAxis {
+    /// Transitions of all actors together (metrics.csv's `env_steps`).
+    EnvSteps,
+    /// Algorithm 1's time-steps: env steps / K (each of the K actors takes one step a round).
+    Rounds,
+    /// Critic-ensemble updates (metrics.csv's `critic_updates`).
+    CriticUpdates,
+    /// Seconds of training, resumed runs included (metrics.csv's `wall_s`).
+    WallClock,
+}
+
+impl XAxis {
+    /// The axis label.
+    pub fn label(self) -> &'static str {
+        match self {
+            XAxis::EnvSteps => "env steps (transitions of all actors together)",
+            XAxis::Rounds => "rounds (each of the K actors takes one step; env steps / K)",
+            XAxis::CriticUpdates => "critic updates",
+            XAxis::WallClock => "wall-clock seconds of training",
+        }
+    }
+
+    /// Its name on the command line and in `[[figure]] x`.
+    pub fn name(self) -> &'static str {
+        match self {
+            XAxis::EnvSteps => "env-steps",
+            XAxis::Rounds => "rounds",
+            XAxis::CriticUpdates => "critic-updates",
+            XAxis::WallClock => "wall-clock",
+        }
+    }
+
+    /// Its column name in the curve data CSVs.
+    pub fn column(self) -> &'static str {
+        match self {
+            XAxis::EnvSteps => "env_steps",
+            XAxis::Rounds => "rounds",
+            XAxis::CriticUpdates => "critic_updates",
+            XAxis::WallClock => "wall_s",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<XAxis> {
+        [
+            XAxis::EnvSteps,
+            XAxis::Rounds,
+            XAxis::CriticUpdates,
+            XAxis::WallClock,
+        ]
+        .into_iter()
+        .find(|x| x.name() == name)
+    }
+}
+
 /// `metrics.csv`: one row per epoch.
 #[derive(Clone, Debug, Default)]
 pub struct Metrics {
@@ -33,6 +89,9 @@ pub struct Metrics {
     pub steps: Vec<f64>,
     /// The ranking's best actor per epoch (`best`), when the file has that column.
     pub best: Option<Vec<f64>>,
+    /// `critic_updates` and `wall_s` per epoch, when the file has those columns.
+    pub critic_updates: Option<Vec<f64>>,
+    pub wall_s: Option<Vec<f64>>,
     /// `eval_return_i`, `[actor][epoch]`.
     pub returns: Vec<Vec<f64>>,
     /// `eval_success_i`, `[actor][epoch]` (NaN for tasks without success).
@@ -62,12 +121,15 @@ impl Metrics {
         };
         let steps_col = col("env_steps").context("no env_steps column")?;
         let best_col = col("best");
+        let (updates_col, wall_col) = (col("critic_updates"), col("wall_s"));
         let (ret, suc) = (prefixed("eval_return_"), prefixed("eval_success_"));
         if ret.is_empty() {
             bail!("no eval_return_* columns (written by an older selkd?)");
         }
         let mut m = Metrics {
             best: best_col.map(|_| Vec::new()),
+            critic_updates: updates_col.map(|_| Vec::new()),
+            wall_s: wall_col.map(|_| Vec::new()),
             returns: vec![Vec::new(); ret.len()],
             successes: vec![Vec::new(); suc.len()],
             ..Metrics::default()
@@ -89,8 +151,14 @@ impl Metrics {
                 continue;
             }
             m.steps.push(v[steps_col]);
-            if let (Some(b), Some(c)) = (m.best.as_mut(), best_col) {
-                b.push(v[c]);
+            for (out, c) in [
+                (m.best.as_mut(), best_col),
+                (m.critic_updates.as_mut(), updates_col),
+                (m.wall_s.as_mut(), wall_col),
+            ] {
+                if let (Some(out), Some(c)) = (out, c) {
+                    out.push(v[c]);
+                }
             }
             for (a, &c) in ret.iter().enumerate() {
                 m.returns[a].push(v[c]);
@@ -100,6 +168,31 @@ impl Metrics {
             }
         }
         Ok(m)
+    }
+
+    /// Each epoch's position on `axis` (rounds need the run's K); `run` names the directory in
+    /// the error when an older metrics.csv lacks the axis's column.
+    pub fn xs(&self, axis: XAxis, actors: u64, run: &Path) -> Result<Vec<f64>> {
+        let column = |c: &Option<Vec<f64>>| {
+            c.clone().with_context(|| {
+                format!(
+                    "{} has no {} column (written by an older selkd?), so it cannot be drawn against {}; use --x env-steps or rounds",
+                    run.join("metrics.csv").display(),
+                    axis.column(),
+                    axis.name()
+                )
+            })
+        };
+        match axis {
+            XAxis::EnvSteps => Ok(self.steps.clone()),
+            XAxis::Rounds => Ok(self
+                .steps
+                .iter()
+                .map(|s| s / actors.max(1) as f64)
+                .collect()),
+            XAxis::CriticUpdates => column(&self.critic_updates),
+            XAxis::WallClock => column(&self.wall_s),
+        }
     }
 
     /// Whether the task reports success (some `eval_success_*` value is not NaN).
@@ -151,6 +244,11 @@ pub struct Run {
     pub seed: u64,
     /// `run.total_env_steps`.
     pub budget: u64,
+    /// `algo.actors`, K.
+    pub actors: u64,
+    /// `run.total_rounds` when the budget was set in rounds (0: set in env steps, or a config
+    /// written before rounds existed).
+    pub budget_rounds: u64,
     /// Env steps the final checkpoint reached (`inserted`), if there is one.
     pub reached: Option<u64>,
     /// Empty when the run wrote no metrics.csv yet.
@@ -183,10 +281,26 @@ impl Run {
             .and_then(|v| v.as_integer())
             .with_context(|| format!("{} has no run.total_env_steps", cfg_path.display()))?
             as u64;
+        let int = |section: &str, key: &str| {
+            get(&config, section, key)
+                .and_then(|v| v.as_integer())
+                .map(|v| v as u64)
+        };
+        // A config.toml always has algo.actors (written whole); the default is Table 1's K.
+        let actors = int("algo", "actors").unwrap_or(5).max(1);
+        let budget_rounds = int("run", "total_rounds").unwrap_or(0);
         let seed = get(&config, "run", "seed")
             .and_then(|v| v.as_integer())
             .unwrap_or(0) as u64;
-        let state = dir.join("checkpoints/final/state.json");
+        // A published run (`selkd experiment publish`) keeps the final checkpoint's state.json,
+        // without the weights, beside its config.
+        let state = [
+            dir.join("checkpoints/final/state.json"),
+            dir.join("state.json"),
+        ]
+        .into_iter()
+        .find(|p| p.exists())
+        .unwrap_or_else(|| dir.join("checkpoints/final/state.json"));
         let reached = if state.exists() {
             let v: serde_json::Value = serde_json::from_str(
                 &std::fs::read_to_string(&state)
@@ -212,6 +326,8 @@ impl Run {
             env,
             seed,
             budget,
+            actors,
+            budget_rounds,
             reached,
             metrics,
         })
@@ -220,6 +336,25 @@ impl Run {
     /// The final checkpoint reached the budget.
     pub fn finished(&self) -> bool {
         self.reached.is_some_and(|r| r >= self.budget)
+    }
+
+    /// Each epoch's position on `axis`, or an error naming the column an older metrics.csv lacks.
+    pub fn xs(&self, axis: XAxis) -> Result<Vec<f64>> {
+        self.metrics.xs(axis, self.actors, &self.dir)
+    }
+
+    /// The budget in words: `6000 env steps (2000 rounds of K = 3, set in rounds)`.
+    pub fn budget_text(&self) -> String {
+        let rounds = self.budget.div_ceil(self.actors);
+        let unit = if self.budget_rounds > 0 {
+            "set in rounds"
+        } else {
+            "set in env steps"
+        };
+        format!(
+            "{} env steps = {} rounds of K = {} ({unit})",
+            self.budget, rounds, self.actors
+        )
     }
 
     /// Env steps the run got to: the final checkpoint's, else the last epoch's.

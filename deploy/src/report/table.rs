@@ -15,6 +15,37 @@ pub struct Row {
     pub in_run: Vec<f64>,
     /// `(seed, env steps reached, budget)` of runs that stopped short.
     pub short: Vec<(u64, u64, u64)>,
+    /// The method's budget on this task (its runs share one config, so one budget).
+    pub budget: Budget,
+}
+
+/// A run's budget in both units, and the unit it was set in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Budget {
+    pub env_steps: u64,
+    pub rounds: u64,
+    pub actors: u64,
+    pub in_rounds: bool,
+}
+
+impl Budget {
+    pub fn unit(&self) -> &'static str {
+        if self.in_rounds {
+            "rounds"
+        } else {
+            "env_steps"
+        }
+    }
+
+    /// `6000 env steps = 2000 rounds × K = 3`, the unit it was set in first.
+    pub fn text(&self) -> String {
+        let (e, r, k) = (self.env_steps, self.rounds, self.actors);
+        if self.in_rounds {
+            format!("{r} rounds × K = {k} = {e} env steps")
+        } else {
+            format!("{e} env steps = {r} rounds × K = {k}")
+        }
+    }
 }
 
 impl Row {
@@ -48,12 +79,33 @@ pub fn markdown(task: &str, rows: &[Row], rate: bool, episodes: usize) -> String
         .fold(f64::NAN, f64::max);
     let what = if rate { "success rate" } else { "mean return" };
     let mut s = String::new();
-    let _ = writeln!(s, "#### `{task}`\n");
+    // Which budget the scores are at: one for the whole table, or say that they differ (SELKD
+    // at equal rounds has K× the env steps of a K = 1 baseline; a reader must see that here).
+    let first = rows.first().map(|r| r.budget);
+    let at = match first {
+        Some(b) if rows.iter().all(|r| r.budget == b) => format!("all at {}", b.text()),
+        Some(_)
+            if rows
+                .iter()
+                .all(|r| r.budget.env_steps == rows[0].budget.env_steps) =>
+        {
+            format!("all at equal env steps, {}", rows[0].budget.env_steps)
+        }
+        Some(_)
+            if rows
+                .iter()
+                .all(|r| r.budget.rounds == rows[0].budget.rounds) =>
+        {
+            format!("all at equal rounds, {}", rows[0].budget.rounds)
+        }
+        _ => "budgets differ between methods: see the budget column".to_string(),
+    };
+    let _ = writeln!(s, "#### `{task}` ({at})\n");
     let _ = writeln!(
         s,
-        "| method | finished seeds | score: {what} on {episodes} fresh episodes, mean ± std | in-run final evaluation of the ranked actor, mean ± std |"
+        "| method | budget | finished seeds | score: {what} on {episodes} fresh episodes, mean ± std | in-run final evaluation of the ranked actor, mean ± std |"
     );
-    let _ = writeln!(s, "|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|");
     let mut notes = Vec::new();
     for r in rows {
         let (m, sd) = r.score();
@@ -65,8 +117,9 @@ pub fn markdown(task: &str, rows: &[Row], rate: bool, episodes: usize) -> String
         let mark = if r.short.is_empty() { "" } else { " †" };
         let _ = writeln!(
             s,
-            "| {} | {}{mark} | {score} | {} |",
+            "| {} | {} | {}{mark} | {score} | {} |",
             r.method,
+            r.budget.text(),
             r.scores.len(),
             pm(im, isd, rate)
         );
@@ -86,7 +139,7 @@ pub fn markdown(task: &str, rows: &[Row], rate: bool, episodes: usize) -> String
 /// `table2.csv`: every task's rows, numbers at full precision.
 pub fn csv(tasks: &[(String, bool, Vec<Row>)]) -> String {
     let mut s = String::from(
-        "task,method,score,finished_seeds,score_mean,score_std,in_run_mean,in_run_std,short_runs\n",
+        "task,method,score,finished_seeds,score_mean,score_std,in_run_mean,in_run_std,short_runs,budget_env_steps,budget_rounds,actors,budget_set_in\n",
     );
     for (task, rate, rows) in tasks {
         for r in rows {
@@ -99,11 +152,15 @@ pub fn csv(tasks: &[(String, bool, Vec<Row>)]) -> String {
                 .collect();
             let _ = writeln!(
                 s,
-                "{task},{},{},{},{m},{sd},{im},{isd},{}",
+                "{task},{},{},{},{m},{sd},{im},{isd},{},{},{},{},{}",
                 r.method,
                 if *rate { "success_rate" } else { "return" },
                 r.scores.len(),
-                short.join(";")
+                short.join(";"),
+                r.budget.env_steps,
+                r.budget.rounds,
+                r.budget.actors,
+                r.budget.unit()
             );
         }
     }
@@ -122,28 +179,51 @@ mod tests {
                 scores: vec![-100.0, -200.0],
                 in_run: vec![-90.0, -110.0],
                 short: vec![],
+                budget: Budget {
+                    env_steps: 2000,
+                    rounds: 400,
+                    actors: 5,
+                    in_rounds: true,
+                },
             },
             Row {
                 method: "b".into(),
                 scores: vec![-50.0],
                 in_run: vec![-40.0],
                 short: vec![(2, 1500, 2000)],
+                budget: Budget {
+                    env_steps: 2000,
+                    rounds: 2000,
+                    actors: 1,
+                    in_rounds: false,
+                },
             },
         ];
         let md = markdown("pendulum", &rows, false, 20);
         // Sample std of {-100, -200}: 70.7.
         assert!(
-            md.contains("| a | 2 | -150.0 ± 70.7 | -100.0 ± 14.1 |"),
+            md.contains(
+                "| a | 400 rounds × K = 5 = 2000 env steps | 2 | -150.0 ± 70.7 | -100.0 ± 14.1 |"
+            ),
             "{md}"
         );
-        assert!(md.contains("| b | 1 † | **-50.0 ± n/a** |"), "{md}");
+        assert!(
+            md.contains("| b | 2000 env steps = 2000 rounds × K = 1 | 1 † | **-50.0 ± n/a** |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("#### `pendulum` (all at equal env steps, 2000)"),
+            "{md}"
+        );
         assert!(
             md.contains("† b: seed-2 stopped at 1500 of 2000 env steps"),
             "{md}"
         );
         let csv = csv(&[("pendulum".into(), false, rows)]);
         assert!(
-            csv.contains("pendulum,b,return,1,-50,NaN,-40,NaN,seed-2@1500/2000"),
+            csv.contains(
+                "pendulum,b,return,1,-50,NaN,-40,NaN,seed-2@1500/2000,2000,2000,1,env_steps"
+            ),
             "{csv}"
         );
     }

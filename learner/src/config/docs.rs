@@ -3,9 +3,10 @@
 
 /// `(key, doc)` in the order `selkd config` prints them, sections as in a config file.
 pub const KEY_DOCS: &[(&str, &str)] = &[
-    ("run.env", "env registry name: pendulum, hopper, walker2d, halfcheetah, ant, ant-contacts, humanoid, fpc-assembly (or a Gymnasium alias such as Hopper-v5)"),
+    ("run.env", "env registry name: pendulum, hopper, walker2d, halfcheetah, ant, ant-contacts, humanoid, fpc-assembly (or a Gymnasium alias such as Hopper-v5), or gymnasium:<id> for any Gymnasium env (gymnasium:Hopper-v5 is Gymnasium's own MuJoCo task)"),
     ("run.seed", "seeds the networks, the learner's sampling and every worker's env and actions"),
-    ("run.total_env_steps", "budget: transitions of all actors together (K = 5 at 300000 is 60000 per actor)"),
+    ("run.total_env_steps", "budget: transitions of all actors together (K = 5 at 300000 is 60000 per actor); set from run.total_rounds when that is set"),
+    ("run.total_rounds", "budget in rounds instead (Algorithm 1's time-steps: each of the K actors takes one step; env steps = rounds × K); unset or 0: run.total_env_steps is the budget; set only one"),
     ("run.mode", "sync: Algorithm 1's lockstep rounds, reproducible on CPU; async: workers step freely, the learner holds G updates per K transitions"),
     ("run.device", "the learner's device: cpu, cuda or cuda:N"),
     ("run.threads", "threads for the learner (0 = one per core): its critics' members split over them, libtorch on one each"),
@@ -23,6 +24,7 @@ pub const KEY_DOCS: &[(&str, &str)] = &[
     ("algo.critics", "N, the number of critics"),
     ("algo.subset", "M, the size of the random critic subset in the target"),
     ("algo.utd", "G, critic updates per round (per K transitions)"),
+    ("algo.actor_updates_per_round", "U: updates of every actor and temperature per round; 1 is Algorithm 1, U > 1 (at most G) a departure: an actor update after each of the last U critic updates"),
     ("algo.batch_size", "mini-batch size of every update"),
     ("algo.hidden", "hidden layer sizes of every actor and critic MLP"),
     ("algo.lr", "Adam learning rate of actors and critics"),
@@ -72,6 +74,7 @@ mod tests {
         c.algo.fixed_alpha = Some(0.1);
         c.algo.target_entropy = Some(-1.0);
         c.algo.trained_critics = Some(3);
+        c.run.total_rounds = 1000;
         let table: toml::Table = toml::from_str(&c.to_toml()).unwrap();
         let mut keys = vec![];
         for (section, v) in &table {

@@ -287,3 +287,22 @@ warmup_steps = 400
 epoch_env_steps = 500
 episodes = 1
 "#;
+
+/// Mean undiscounted return of a uniform-random policy on Pendulum (the bar to beat).
+pub fn random_policy_return(episodes: u64) -> f64 {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(99);
+    let mut env = selkd_envs::make("pendulum").unwrap();
+    let mut total = 0.0;
+    for e in 0..episodes {
+        env.reset(Some(1000 + e));
+        loop {
+            let s = env.step(&[rng.gen_range(-1.0..=1.0)]);
+            total += s.reward;
+            if s.terminated || s.truncated {
+                break;
+            }
+        }
+    }
+    total / episodes as f64
+}

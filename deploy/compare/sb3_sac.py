@@ -1,6 +1,9 @@
-"""Stable-Baselines3's SAC on Gymnasium's Pendulum-v1 with its default settings, evaluated as our
-runs are: every 1000 env steps, 10 deterministic episodes. One CSV row per evaluation:
-seed,env_steps,mean_return. Run by deploy/compare/sac-vs-sb3.sh (which makes its venv)."""
+"""Stable-Baselines3's SAC on a Gymnasium task with its default settings, evaluated as our runs
+are: every EVERY env steps, EPISODES deterministic episodes on a separate env. One CSV row per
+evaluation: seed,env_steps,mean_return. Run by deploy/compare/sac-vs-sb3.sh.
+
+Usage: python sb3_sac.py TASK SEED STEPS [EVERY] [EPISODES]   (e.g. Hopper-v5 1 50000 5000 10)
+"""
 import sys
 
 import gymnasium as gym
@@ -9,19 +12,22 @@ import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
+# One core per run, as our side (run.threads=1).
 torch.set_num_threads(1)
-seed, steps = int(sys.argv[1]), int(sys.argv[2])
+task, seed, steps = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+every = int(sys.argv[4]) if len(sys.argv) > 4 else 1000
+episodes = int(sys.argv[5]) if len(sys.argv) > 5 else 10
 
 
 class Evaluate(BaseCallback):
     def __init__(self):
         super().__init__()
-        self.env = gym.make("Pendulum-v1")
+        self.env = gym.make(task)
 
     def _on_step(self):
-        if self.num_timesteps % 1000 == 0:
+        if self.num_timesteps % every == 0:
             returns = []
-            for e in range(10):
+            for e in range(episodes):
                 obs, _ = self.env.reset(seed=1_000_000 + 1000 * self.num_timesteps + e)
                 done, total = False, 0.0
                 while not done:
@@ -36,5 +42,5 @@ class Evaluate(BaseCallback):
 
 # SB3's defaults for SAC: lr 3e-4, buffer 1e6, learning_starts 100, batch 256, tau 0.005,
 # gamma 0.99, train_freq 1, gradient_steps 1, ent_coef "auto" (target entropy −|A|), [256, 256].
-model = SAC("MlpPolicy", gym.make("Pendulum-v1"), seed=seed, device="cpu", verbose=0)
+model = SAC("MlpPolicy", gym.make(task), seed=seed, device="cpu", verbose=0)
 model.learn(total_timesteps=steps, callback=Evaluate())

@@ -1,0 +1,77 @@
+//! examples/: the by-hand run (a learner and two actor-workers, the commands a user types in three
+//! terminals) runs as written and finishes with its metrics and final checkpoint.
+
+mod common;
+
+use common::*;
+use std::os::unix::process::CommandExt;
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+#[test]
+fn the_by_hand_example_trains_a_run_with_a_learner_and_two_workers() {
+    let dir = temp_dir("by-hand");
+    let config = dir.join("tiny.toml");
+    std::fs::write(&config, TINY).unwrap();
+    let run_dir = dir.join("run");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let bin_dir = bin("learner").parent().unwrap().to_path_buf();
+    bin("actor-worker");
+    let mut c = Command::new("bash");
+    c.current_dir(&root)
+        .arg("examples/by-hand.sh")
+        .args(["--set", "run.total_env_steps=1000"])
+        .env("BIN", &bin_dir)
+        .env("CONFIG", &config)
+        .env("RUN_DIR", &run_dir)
+        .env("RUN_ID", format!("byhand{}", std::process::id()))
+        .env("ENV", "pendulum")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        // Its own group: a run that hangs is killed whole, learner and workers with the script.
+        .process_group(0);
+    let child = c.spawn().unwrap();
+    let pid = child.id() as i32;
+    let waiter = std::thread::spawn(move || child.wait_with_output().unwrap());
+    let deadline = Instant::now() + Duration::from_secs(300);
+    while !waiter.is_finished() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    if !waiter.is_finished() {
+        unsafe { libc::kill(-pid, libc::SIGKILL) };
+    }
+    let out = waiter.join().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success(),
+        "examples/by-hand.sh failed ({}):\n{stderr}",
+        out.status
+    );
+    // The learner's progress lines, which `selkd train` would read.
+    assert!(stdout.contains("PROGRESS {"), "{stdout}");
+
+    let (header, rows) = metrics(&run_dir);
+    assert_eq!(
+        rows.len(),
+        2,
+        "one row per 500 env steps:\n{header:?}\n{rows:?}"
+    );
+    assert_eq!(column(&header, &rows, "env_steps"), [500.0, 1000.0]);
+    assert!(column(&header, &rows, "critic_updates")[1] > 0.0);
+    for actor in 0..2 {
+        let returns = column(&header, &rows, &format!("eval_return_{actor}"));
+        assert!(
+            returns.iter().all(|r| r.is_finite()),
+            "actor {actor}: {returns:?}"
+        );
+    }
+    let last = run_dir.join("checkpoints/final");
+    assert!(last.join("model.safetensors").exists());
+    let state: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(last.join("state.json")).unwrap()).unwrap();
+    assert_eq!(state["inserted"], 1000, "{state}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
