@@ -66,7 +66,12 @@ pub const HALFCHEETAH: [f32; 7] = [
 
 /// The cheetah's action at control step `t` under [`HALFCHEETAH`].
 pub fn halfcheetah(t: usize) -> [f32; 6] {
-    let p = &HALFCHEETAH;
+    cheetah_sine(&HALFCHEETAH, t)
+}
+
+/// An open-loop sine gait for the cheetah: a_j = A_j sin(2π f t + φ_j), `p` = [f Hz, φ_1 … φ_6]
+/// (A_j = 1) or [f, φ_1 … φ_6, A_1 … A_6]; `t` counts control steps.
+pub fn cheetah_sine(p: &[f32], t: usize) -> [f32; 6] {
     let phase = std::f32::consts::TAU * p[0] * t as f32 * crate::halfcheetah::SIM.control_dt;
-    std::array::from_fn(|j| (phase + p[1 + j]).sin())
+    std::array::from_fn(|j| p.get(7 + j).copied().unwrap_or(1.0) * (phase + p[1 + j]).sin())
 }
