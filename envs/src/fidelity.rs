@@ -315,7 +315,11 @@ fn climb_cheetah() {
         var("CLIMB_SEED", 0),
     );
     let (sim, tuning) = parse("halfcheetah", &spec);
-    let score = |p: &[f32]| mean(&cheetah_sine_episodes(sim, tuning, &[100, 101], p), |o| o.ret);
+    let score = |p: &[f32]| {
+        mean(&cheetah_sine_episodes(sim, tuning, &[100, 101], p), |o| {
+            o.ret
+        })
+    };
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
     let pi = std::f32::consts::PI;
     let mut best: Vec<f32> = vec![];

@@ -428,9 +428,15 @@ mod tests {
             (env.qpos()[0], env.qvel()[0])
         };
         let (x, v) = drift(true);
-        assert!(x.abs() < 0.05 && v.abs() < 0.2, "explicit: x {x} m, ẋ {v} m/s");
+        assert!(
+            x.abs() < 0.05 && v.abs() < 0.2,
+            "explicit: x {x} m, ẋ {v} m/s"
+        );
         let (x, v) = drift(false);
-        assert!(x.abs() > 0.1 && v.abs() > 0.3, "semi-implicit: x {x} m, ẋ {v} m/s");
+        assert!(
+            x.abs() > 0.1 && v.abs() > 0.3,
+            "semi-implicit: x {x} m, ẋ {v} m/s"
+        );
     }
 
     /// The physics settings compared (rapier steps × iterations per control step): the error

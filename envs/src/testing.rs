@@ -60,7 +60,6 @@ pub(crate) fn mean(eps: &[Ep], f: impl Fn(&Ep) -> f64) -> f64 {
     eps.iter().map(f).sum::<f64>() / eps.len() as f64
 }
 
-
 /// Mean return of a uniform random policy over `seeds` (actions from `seed + 1000`) and of a
 /// standing (zero-action) policy over the same seeds: the reward bands of issue 32.
 pub(crate) fn random_and_standing_returns<E: crate::Env, const N: usize>(
@@ -76,4 +75,3 @@ pub(crate) fn random_and_standing_returns<E: crate::Env, const N: usize>(
     }
     (mean(&random, |e| e.ret), mean(&standing, |e| e.ret))
 }
-
