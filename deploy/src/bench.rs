@@ -3,7 +3,7 @@
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use rand::{Rng, SeedableRng};
-use selkd_learner::config::{AlgoConfig, Config, Precision, Regulariser, Sharing};
+use selkd_learner::config::{AlgoConfig, AlgoKeys, Config, Precision, Regulariser, Sharing};
 use selkd_learner::matmul::CpuGemm;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -143,7 +143,8 @@ fn from_flags(b: &LearnerBench) -> Result<Setup> {
     if b.variants > 0 && b.k != 1 {
         anyhow::bail!("--variants (AVTD) needs --k 1");
     }
-    let cfg = AlgoConfig {
+    // The flags are `[algo]` keys: the method they make is read as a config file's is.
+    let cfg = AlgoConfig::try_from(AlgoKeys {
         critic_matmul,
         actors: b.k,
         critics: b.n,
@@ -161,8 +162,9 @@ fn from_flags(b: &LearnerBench) -> Result<Setup> {
         .cycle()
         .take(b.variants)
         .collect(),
-        ..AlgoConfig::default()
-    };
+        ..AlgoKeys::default()
+    })
+    .map_err(anyhow::Error::msg)?;
     Ok(Setup {
         cfg,
         obs: b.obs,
@@ -209,7 +211,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             let device = selkd_learner::service::parse_device(&device_name)?;
             selkd_learner::service::check_matmul(cfg.critic_matmul, device)?;
             let r = selkd_learner::bench::learner(&cfg, obs, act, device, b.rounds);
-            let variants = cfg.variants.len();
+            let variants = cfg.method.variants().len();
             // AVTD's round is V REDQ rounds' matmuls, stacked.
             let gflops = selkd_learner::bench::flops_per_round(&cfg, obs, act)
                 * variants.max(1) as f64
@@ -220,7 +222,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
                 cfg.actors, cfg.critics, cfg.subset, cfg.utd,
                 if variants > 0 { format!(" V={variants}") } else { String::new() }, cfg.batch_size,
                 cfg.hidden.iter().map(usize::to_string).collect::<Vec<_>>().join("x"),
-                sharing_name(cfg.sharing), precision_name(cfg.critic_matmul),
+                sharing_name(cfg.method.sharing()), precision_name(cfg.critic_matmul),
                 selkd_learner::service::cpu_model(), selkd_learner::threads::get(), selkd_learner::matmul::chosen().describe(), r.rounds_per_sec
             );
             if let Some(budget) = budget {

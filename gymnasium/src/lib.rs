@@ -31,6 +31,9 @@ use std::sync::Mutex;
 /// The name prefix of Gymnasium envs.
 pub const PREFIX: &str = "gymnasium:";
 
+/// A Box space as the glue reads it: low, high (flattened), shape, dtype.
+type BoxSpace = (Vec<f64>, Vec<f64>, Vec<usize>, String);
+
 /// The `env_options` key that lists modules to import before `gymnasium.make`.
 pub const IMPORT_KEY: &str = "import";
 
@@ -222,7 +225,7 @@ fn make_gym(name: &str, options: &EnvOptions) -> Result<GymEnv, EnvError> {
         let env = gym
             .call_method("make", (id,), Some(&kw))
             .map_err(|e| options_error(name, into_venv(one_line(py, &e))))?;
-        let space = |attr: &str| -> Result<(Vec<f64>, Vec<f64>, Vec<usize>, String), EnvError> {
+        let space = |attr: &str| -> Result<BoxSpace, EnvError> {
             let s = env.getattr(attr).map_err(py_err)?;
             let b = glue.bind(py).call_method1("box", (&s,)).map_err(py_err)?;
             if b.is_none() {

@@ -73,7 +73,7 @@ pub fn flops_per_round(cfg: &AlgoConfig, obs: usize, act: usize) -> f64 {
         cfg.subset as f64,
         cfg.batch_size as f64,
     );
-    let groups = match cfg.sharing {
+    let groups = match cfg.method.sharing() {
         Sharing::PerUpdate => 1.0,
         Sharing::PerCritic => n,
     };

@@ -113,7 +113,7 @@ impl TrainingState {
     /// The actor that represents the run: the best by the ranking, or for AVTD the selected
     /// variant's (its actors are the variants, of which one acts).
     pub fn best_actor(&self) -> usize {
-        if self.config.algo.variants.is_empty() {
+        if self.config.algo.method.variants().is_empty() {
             self.ranking.best()
         } else {
             self.selected_variant
@@ -124,7 +124,7 @@ impl TrainingState {
     /// actors; AVTD's only acting actor is its selected variant, so only that one has a score.
     pub fn score_of(&self, index: usize) -> Option<f64> {
         let scores = self.ranking.scores();
-        if self.config.algo.variants.is_empty() {
+        if self.config.algo.method.variants().is_empty() {
             scores.get(index).copied().flatten()
         } else {
             (index == self.selected_variant)
@@ -271,11 +271,12 @@ fn read_tensors(path: &Path) -> Result<HashMap<String, Tensor>> {
         .collect())
 }
 
-/// Writes a checkpoint to `dir` (via a temporary directory, so a crash never leaves half of one).
+/// Writes a checkpoint to `dir` (via a temporary directory, so a crash never leaves half of one);
+/// with `replay`, its rows and AVTD's validation rows too.
 pub fn save(
     dir: &Path,
-    selkd: &Selkd,
-    replay: Option<(&mut ReplayBuffer, Option<&mut ReplayBuffer>)>,
+    selkd: &mut Selkd,
+    replay: Option<&mut ReplayBuffer>,
     state: &TrainingState,
 ) -> Result<()> {
     let tmp = dir.with_extension("partial");
@@ -295,8 +296,8 @@ pub fn save(
 /// The files of a checkpoint, written and fsynced into the fresh directory `tmp`.
 fn write_into(
     tmp: &Path,
-    selkd: &Selkd,
-    replay: Option<(&mut ReplayBuffer, Option<&mut ReplayBuffer>)>,
+    selkd: &mut Selkd,
+    replay: Option<&mut ReplayBuffer>,
     state: &TrainingState,
 ) -> Result<()> {
     let named: Vec<(String, Tensor)> = tensors(selkd)
@@ -313,11 +314,11 @@ fn write_into(
     std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
     Tensor::write_safetensors(&named, tmp.join("model.safetensors"))
         .context("writing model.safetensors")?;
-    if let Some((replay, validation)) = replay {
+    if let Some(replay) = replay {
         let cpu = |b: &mut ReplayBuffer| b.export().to_device(tch::Device::Cpu).contiguous();
         let mut entries = vec![("rows", cpu(replay))];
-        if let Some(v) = validation {
-            entries.push(("validation", cpu(v)));
+        if let Some(avtd) = &mut selkd.avtd {
+            entries.push(("validation", cpu(&mut avtd.validation)));
         }
         Tensor::write_safetensors(&entries, tmp.join("replay.safetensors"))
             .context("writing replay.safetensors")?;
@@ -383,12 +384,7 @@ fn fsync(path: &Path) -> Result<()> {
 
 /// Loads a checkpoint into an already built `selkd` (same config) and, when it holds them, the
 /// replay buffer and AVTD's validation rows.
-pub fn load(
-    dir: &Path,
-    selkd: &mut Selkd,
-    replay: &mut ReplayBuffer,
-    validation: Option<&mut ReplayBuffer>,
-) -> Result<TrainingState> {
+pub fn load(dir: &Path, selkd: &mut Selkd, replay: &mut ReplayBuffer) -> Result<TrainingState> {
     let state = check_complete(dir).map_err(anyhow::Error::msg)?;
     let stored = read_tensors(&dir.join("model.safetensors"))?;
     tch::no_grad(|| -> Result<()> {
@@ -418,7 +414,9 @@ pub fn load(
         opt.step = steps;
     }
     selkd.critic_opt.member_steps = state.critic_member_steps.clone();
-    selkd.selected = state.selected_variant;
+    if let Some(avtd) = &mut selkd.avtd {
+        avtd.selected = state.selected_variant;
+    }
     let replay_file = dir.join("replay.safetensors");
     if replay_file.exists() {
         let stored = read_tensors(&replay_file)?;
@@ -426,8 +424,8 @@ pub fn load(
             .get("rows")
             .context("replay.safetensors lacks its `rows`")?;
         replay.import(rows);
-        if let (Some(v), Some(rows)) = (validation, stored.get("validation")) {
-            v.import(rows);
+        if let (Some(avtd), Some(rows)) = (&mut selkd.avtd, stored.get("validation")) {
+            avtd.validation.import(rows);
         }
     }
     Ok(state)

@@ -151,9 +151,13 @@ pub enum Backbone {
     Td3,
 }
 
+/// `[algo]` as written in a config file (and in every run's config.toml and checkpoint): flat
+/// keys, one per setting. [`AlgoConfig`] reads and writes itself through it, so files of every
+/// earlier version keep their meaning; [`AlgoKeys::method`] turns the method's keys into a
+/// [`Method`], the one place where they are read.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
-pub struct AlgoConfig {
+pub struct AlgoKeys {
     pub backbone: Backbone,
     /// TD3: std of the Gaussian exploration noise added to the workers' actions.
     pub exploration_noise: f64,
@@ -219,6 +223,374 @@ pub struct AlgoConfig {
     pub validation_every: u64,
     /// AVTD's `weight-decay` variant: c in the ½ c ‖W‖² added to each critic's loss (weights, not biases).
     pub weight_decay: f64,
+}
+
+/// The learner's settings as the program holds them: the settings every method has, and the
+/// [`Method`] with the settings only it has. Read from and written as [`AlgoKeys`].
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(try_from = "AlgoKeys", into = "AlgoKeys")]
+pub struct AlgoConfig {
+    /// SELKD, DNS, DPD or AVTD, with its own settings.
+    pub method: Method,
+    pub backbone: Backbone,
+    /// TD3: std of the Gaussian exploration noise added to the workers' actions.
+    pub exploration_noise: f64,
+    /// TD3: std of the target policy smoothing noise, and where it is clipped.
+    pub target_noise: f64,
+    pub target_noise_clip: f64,
+    /// K actors.
+    pub actors: usize,
+    /// N critics.
+    pub critics: usize,
+    /// M: size of the random critic subset in the target.
+    pub subset: usize,
+    /// G: critic updates per round (per K transitions).
+    pub utd: usize,
+    /// U: updates of every actor (and its temperature) per round (see [`AlgoKeys`]).
+    pub actor_updates_per_round: usize,
+    pub batch_size: usize,
+    pub hidden: Vec<usize>,
+    pub lr: f64,
+    pub gamma: f64,
+    /// ρ in `Q̄ ← ρ Q̄ + (1 − ρ) Q`.
+    pub polyak: f64,
+    pub replay_capacity: usize,
+    /// Uniform-random transitions (all actors together) before the first update.
+    pub warmup_steps: u64,
+    /// λ_KD, weight of the distillation term.
+    pub kd_weight: f64,
+    /// How an actor's objective reduces the critics' values of its action.
+    pub actor_q: ActorQ,
+    /// Fixed temperature; when absent, each actor's α is tuned automatically.
+    pub fixed_alpha: Option<f64>,
+    pub alpha_lr: f64,
+    /// Target entropy for the automatic temperature; default −|A|.
+    pub target_entropy: Option<f64>,
+    /// Element type of the critics' matmuls.
+    pub critic_matmul: Precision,
+}
+
+/// The method: which critics an actor's target and objective use, which critics a critic
+/// update trains, and whom an actor distils toward. Each variant carries the settings only it
+/// has, so a combination that no method is cannot be held. REDQ, Maxmin, Average-DQN, REM, AQE,
+/// SAC and TASAC are [`Method::Selkd`] with their K, N, M, target and `actor_q`.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Method {
+    /// Algorithm 1: K actors share N critics; y is `target`'s reduction of every actor's next
+    /// action through a random subset of M critics (`algo.target`, `algo.sharing`).
+    Selkd {
+        target: Formation,
+        /// `target = "max-aqe"`: how many of the highest subset values AQE drops.
+        aqe_drop: usize,
+        sharing: Sharing,
+        distillation: Distillation,
+    },
+    /// DNS (`algo.trained_critics`): SELKD's shared target on one batch per update, but each
+    /// update trains only `trained_critics` (k) of the N critics, drawn by a k-DPP over how alike
+    /// their values on the batch are (`dpp`); the others keep their weights and Adam state.
+    Dns {
+        target: Formation,
+        aqe_drop: usize,
+        trained_critics: usize,
+        distillation: Distillation,
+    },
+    /// DPD (`algo.paired_critics`): actor i owns N/K critics; its target is the min over its
+    /// own (no max over actors), it is judged by them, and it distils toward actor i+1.
+    Dpd {
+        /// Ablation w/o RL: only actor 0 optimises the RL objective.
+        without_rl: bool,
+    },
+    /// AVTD (`algo.variants`): one whole agent per regularisation variant (its actor, its N
+    /// critics, its α) trained side by side on the shared data; the variant whose critics have
+    /// the lowest TD error on held-out transitions acts and is evaluated.
+    Avtd {
+        variants: Vec<Regulariser>,
+        /// Every this-many-th transition received is held out for validation (never trained on).
+        validation_every: u64,
+        /// The `weight-decay` variant's c in the ½ c ‖W‖² added to each critic's loss.
+        weight_decay: f64,
+    },
+}
+
+/// SELKD's and DNS's distillation: which actors distil toward the best and which learn by RL.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Distillation {
+    /// Actors with a distillation term (the best never has one); `None`: every actor. The
+    /// ablation "w/o KD" sets `[0]`.
+    pub kd_actors: Option<Vec<usize>>,
+    /// Ablation "w/o RL": only actor 0 optimises the RL objective; the others only distil.
+    pub without_rl: bool,
+}
+
+impl Default for Method {
+    /// Algorithm 1 with the paper's max-min target.
+    fn default() -> Self {
+        Method::Selkd {
+            target: Formation::MaxMin,
+            aqe_drop: 1,
+            sharing: Sharing::PerUpdate,
+            distillation: Distillation::default(),
+        }
+    }
+}
+
+impl Method {
+    /// SELKD with another target formation (REDQ, Maxmin, the ensemble baselines).
+    pub fn selkd(target: Formation) -> Self {
+        Method::Selkd {
+            target,
+            aqe_drop: 1,
+            sharing: Sharing::PerUpdate,
+            distillation: Distillation::default(),
+        }
+    }
+
+    /// How a critic update's mini-batches are drawn: per critic only where SELKD is set to.
+    pub fn sharing(&self) -> Sharing {
+        match self {
+            Method::Selkd { sharing, .. } => *sharing,
+            _ => Sharing::PerUpdate,
+        }
+    }
+
+    /// AVTD's variants; empty for every other method.
+    pub fn variants(&self) -> &[Regulariser] {
+        match self {
+            Method::Avtd { variants, .. } => variants,
+            _ => &[],
+        }
+    }
+}
+
+impl AlgoKeys {
+    /// The method these keys select: `paired_critics` is DPD, a non-empty `variants` AVTD,
+    /// `trained_critics` DNS, and otherwise SELKD. A combination no method has is a one-line
+    /// error; keys a method does not read (`target`, `sharing` and `aqe_drop` under DPD and
+    /// AVTD, which have targets of their own) are left out of it, as they always were ignored.
+    pub fn method(&self) -> Result<Method, String> {
+        let per_update = self.sharing == Sharing::PerUpdate;
+        if self.paired_critics && !per_update {
+            return Err(paired_critics_needs(self.critics, self.actors));
+        }
+        if self.trained_critics.is_some() && (self.paired_critics || !per_update) {
+            return Err("algo.trained_critics (DNS) compares the critics on one batch: it needs sharing = \"per-update\" and no paired_critics".into());
+        }
+        if !self.variants.is_empty()
+            && (self.paired_critics
+                || self.trained_critics.is_some()
+                || self.without_rl
+                || self.kd_actors.is_some()
+                || !per_update)
+        {
+            return Err(AVTD_NEEDS.into());
+        }
+        if self.paired_critics && self.kd_actors.is_some() {
+            return Err("algo.kd_actors cannot be combined with algo.paired_critics (DPD's actors all distil toward their peer)".into());
+        }
+        let distillation = Distillation {
+            kd_actors: self.kd_actors.clone(),
+            without_rl: self.without_rl,
+        };
+        Ok(if self.paired_critics {
+            Method::Dpd {
+                without_rl: self.without_rl,
+            }
+        } else if !self.variants.is_empty() {
+            Method::Avtd {
+                variants: self.variants.clone(),
+                validation_every: self.validation_every,
+                weight_decay: self.weight_decay,
+            }
+        } else if let Some(k) = self.trained_critics {
+            Method::Dns {
+                target: self.target,
+                aqe_drop: self.aqe_drop,
+                trained_critics: k,
+                distillation,
+            }
+        } else {
+            Method::Selkd {
+                target: self.target,
+                aqe_drop: self.aqe_drop,
+                sharing: self.sharing,
+                distillation,
+            }
+        })
+    }
+}
+
+impl Method {
+    /// The method's own settings against the sizes they need, with a one-line error.
+    fn check(&self, a: &AlgoConfig) -> Result<(), String> {
+        match self {
+            Method::Selkd {
+                target, aqe_drop, ..
+            }
+            | Method::Dns {
+                target, aqe_drop, ..
+            } => {
+                if let Method::Dns {
+                    trained_critics: k,
+                    ..
+                } = self
+                {
+                    if *k == 0 || *k > a.critics {
+                        return Err(format!(
+                            "algo.trained_critics (k = {k}) must be between 1 and algo.critics (N = {}), or absent to train all",
+                            a.critics
+                        ));
+                    }
+                }
+                if *target == Formation::MaxAqe && *aqe_drop >= a.subset {
+                    return Err(format!("algo.aqe_drop ({aqe_drop}) must be below algo.subset (M = {}) so AQE keeps at least one value", a.subset));
+                }
+            }
+            Method::Dpd { .. } => {
+                if a.actors < 2 || !a.critics.is_multiple_of(a.actors) {
+                    return Err(paired_critics_needs(a.critics, a.actors));
+                }
+            }
+            Method::Avtd {
+                variants,
+                validation_every,
+                weight_decay,
+            } => {
+                if variants.len() > 8 {
+                    return Err(format!(
+                        "algo.variants lists {} variants; AVTD here trains at most 8",
+                        variants.len()
+                    ));
+                }
+                if a.actors != 1 {
+                    return Err(AVTD_NEEDS.into());
+                }
+                if *validation_every < 2 {
+                    return Err(format!("algo.validation_every = {validation_every} must be at least 2 (every n-th transition is held out for validation; 10 holds out 10%)"));
+                }
+                if !(*weight_decay >= 0.0 && weight_decay.is_finite()) {
+                    return Err(format!("algo.weight_decay = {weight_decay} must be ≥ 0"));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// SELKD's and DNS's `kd_actors`, when set.
+    fn kd_actors(&self) -> Option<&[usize]> {
+        match self {
+            Method::Selkd { distillation, .. } | Method::Dns { distillation, .. } => {
+                distillation.kd_actors.as_deref()
+            }
+            _ => None,
+        }
+    }
+}
+
+fn paired_critics_needs(critics: usize, actors: usize) -> String {
+    format!("algo.paired_critics needs at least 2 actors, algo.critics ({critics}) a multiple of algo.actors ({actors}), and sharing = \"per-update\"")
+}
+
+const AVTD_NEEDS: &str = "algo.variants (AVTD) trains one agent per variant and lets the best act: it needs algo.actors = 1, sharing = \"per-update\", and no paired_critics, trained_critics, without_rl or kd_actors";
+
+impl TryFrom<AlgoKeys> for AlgoConfig {
+    type Error = String;
+    fn try_from(k: AlgoKeys) -> Result<Self, String> {
+        Ok(AlgoConfig {
+            method: k.method()?,
+            backbone: k.backbone,
+            exploration_noise: k.exploration_noise,
+            target_noise: k.target_noise,
+            target_noise_clip: k.target_noise_clip,
+            actors: k.actors,
+            critics: k.critics,
+            subset: k.subset,
+            utd: k.utd,
+            actor_updates_per_round: k.actor_updates_per_round,
+            batch_size: k.batch_size,
+            hidden: k.hidden,
+            lr: k.lr,
+            gamma: k.gamma,
+            polyak: k.polyak,
+            replay_capacity: k.replay_capacity,
+            warmup_steps: k.warmup_steps,
+            kd_weight: k.kd_weight,
+            actor_q: k.actor_q,
+            fixed_alpha: k.fixed_alpha,
+            alpha_lr: k.alpha_lr,
+            target_entropy: k.target_entropy,
+            critic_matmul: k.critic_matmul,
+        })
+    }
+}
+
+impl From<AlgoConfig> for AlgoKeys {
+    /// The method's keys as a file states them; a key the method does not have is written at
+    /// its default.
+    fn from(c: AlgoConfig) -> Self {
+        let mut k = AlgoKeys {
+            backbone: c.backbone,
+            exploration_noise: c.exploration_noise,
+            target_noise: c.target_noise,
+            target_noise_clip: c.target_noise_clip,
+            actors: c.actors,
+            critics: c.critics,
+            subset: c.subset,
+            utd: c.utd,
+            actor_updates_per_round: c.actor_updates_per_round,
+            batch_size: c.batch_size,
+            hidden: c.hidden,
+            lr: c.lr,
+            gamma: c.gamma,
+            polyak: c.polyak,
+            replay_capacity: c.replay_capacity,
+            warmup_steps: c.warmup_steps,
+            kd_weight: c.kd_weight,
+            actor_q: c.actor_q,
+            fixed_alpha: c.fixed_alpha,
+            alpha_lr: c.alpha_lr,
+            target_entropy: c.target_entropy,
+            critic_matmul: c.critic_matmul,
+            ..AlgoKeys::default()
+        };
+        let set_distillation = |k: &mut AlgoKeys, d: Distillation| {
+            k.kd_actors = d.kd_actors;
+            k.without_rl = d.without_rl;
+        };
+        match c.method {
+            Method::Selkd {
+                target,
+                aqe_drop,
+                sharing,
+                distillation,
+            } => {
+                (k.target, k.aqe_drop, k.sharing) = (target, aqe_drop, sharing);
+                set_distillation(&mut k, distillation);
+            }
+            Method::Dns {
+                target,
+                aqe_drop,
+                trained_critics,
+                distillation,
+            } => {
+                (k.target, k.aqe_drop) = (target, aqe_drop);
+                k.trained_critics = Some(trained_critics);
+                set_distillation(&mut k, distillation);
+            }
+            Method::Dpd { without_rl } => {
+                k.paired_critics = true;
+                k.without_rl = without_rl;
+            }
+            Method::Avtd {
+                variants,
+                validation_every,
+                weight_decay,
+            } => {
+                (k.variants, k.validation_every, k.weight_decay) =
+                    (variants, validation_every, weight_decay);
+            }
+        }
+        k
+    }
 }
 
 /// How an AVTD variant regularises its critics (the actors are never regularised).
@@ -307,6 +679,13 @@ impl Default for RunConfig {
 /// Paper Table 1.
 impl Default for AlgoConfig {
     fn default() -> Self {
+        AlgoConfig::try_from(AlgoKeys::default()).expect("Table 1 is SELKD")
+    }
+}
+
+/// Paper Table 1, as keys.
+impl Default for AlgoKeys {
+    fn default() -> Self {
         Self {
             backbone: Backbone::Sac,
             exploration_noise: 0.1,
@@ -384,6 +763,11 @@ impl Config {
             .get("run")
             .and_then(|r| r.get("total_env_steps"))
             .is_some();
+        // The method's keys make one method or a config error (not a parse error) naming them.
+        let keys = value.get("algo").cloned().map(toml::Value::try_into::<AlgoKeys>);
+        if let Some(Ok(keys)) = keys {
+            keys.method().map_err(ConfigError::Invalid)?;
+        }
         let mut cfg: Config = toml::Value::Table(value)
             .try_into()
             .map_err(|e: toml::de::Error| ConfigError::Parse(one_line(&e.to_string())))?;
@@ -427,7 +811,8 @@ impl Config {
         toml::to_string_pretty(self).expect("config serialises")
     }
 
-    /// Checks every value and every combination once, with a message that says what to change.
+    /// Checks every value once, with a message that says what to change. (Method keys that no
+    /// method combines never get here: [`AlgoKeys::method`] refuses them.)
     pub fn validate(&self) -> Result<(), ConfigError> {
         let a = &self.algo;
         let bad = |m: String| Err(ConfigError::Invalid(m));
@@ -512,57 +897,8 @@ impl Config {
         if !(0.0..1.0).contains(&a.polyak) {
             return bad(format!("algo.polyak (ρ) = {} must be in [0, 1)", a.polyak));
         }
-        if a.paired_critics
-            && (a.actors < 2
-                || !a.critics.is_multiple_of(a.actors)
-                || a.sharing != Sharing::PerUpdate)
-        {
-            return bad(format!(
-                "algo.paired_critics needs at least 2 actors, algo.critics ({}) a multiple of algo.actors ({}), and sharing = \"per-update\"",
-                a.critics, a.actors
-            ));
-        }
-        if let Some(k) = a.trained_critics {
-            if k == 0 || k > a.critics {
-                return bad(format!(
-                    "algo.trained_critics (k = {k}) must be between 1 and algo.critics (N = {}), or absent to train all",
-                    a.critics
-                ));
-            }
-            if a.paired_critics || a.sharing != Sharing::PerUpdate {
-                return bad(
-                    "algo.trained_critics (DNS) compares the critics on one batch: it needs sharing = \"per-update\" and no paired_critics".to_string(),
-                );
-            }
-        }
-        if !a.variants.is_empty() {
-            if a.variants.len() > 8 {
-                return bad(format!(
-                    "algo.variants lists {} variants; AVTD here trains at most 8",
-                    a.variants.len()
-                ));
-            }
-            if a.actors != 1
-                || a.paired_critics
-                || a.trained_critics.is_some()
-                || a.without_rl
-                || a.kd_actors.is_some()
-                || a.sharing != Sharing::PerUpdate
-            {
-                return bad("algo.variants (AVTD) trains one agent per variant and lets the best act: it needs algo.actors = 1, sharing = \"per-update\", and no paired_critics, trained_critics, without_rl or kd_actors".into());
-            }
-            if a.validation_every < 2 {
-                return bad(format!("algo.validation_every = {} must be at least 2 (every n-th transition is held out for validation; 10 holds out 10%)", a.validation_every));
-            }
-            if !(a.weight_decay >= 0.0 && a.weight_decay.is_finite()) {
-                return bad(format!(
-                    "algo.weight_decay = {} must be ≥ 0",
-                    a.weight_decay
-                ));
-            }
-        }
-        if a.target == Formation::MaxAqe && a.aqe_drop >= a.subset {
-            return bad(format!("algo.aqe_drop ({}) must be below algo.subset (M = {}) so AQE keeps at least one value", a.aqe_drop, a.subset));
+        if let Err(m) = a.method.check(a) {
+            return bad(m);
         }
         for (key, v) in [
             ("exploration_noise", a.exploration_noise),
@@ -622,12 +958,9 @@ impl Config {
         if self.eval.epoch_env_steps < a.actors as u64 {
             return bad(format!("eval.epoch_env_steps ({}) must be at least algo.actors ({}): one round (K env steps) may not span two epochs", self.eval.epoch_env_steps, a.actors));
         }
-        if let Some(list) = &a.kd_actors {
+        if let Some(list) = a.method.kd_actors() {
             if let Some(&i) = list.iter().find(|&&i| i >= a.actors) {
                 return bad(format!("algo.kd_actors names actor {i}, but the run has algo.actors = {} (actors 0..{})", a.actors, a.actors - 1));
-            }
-            if a.paired_critics {
-                return bad("algo.kd_actors cannot be combined with algo.paired_critics (DPD's actors all distil toward their peer)".into());
             }
         }
         let dev = self.run.device.as_str();
@@ -669,7 +1002,7 @@ impl Config {
             .map_err(|e| ConfigError::Invalid(one_line(&e.to_string())))?;
         let a = &self.algo;
         let (obs, act) = (spec.obs_dim as u128, spec.act_dim as u128);
-        let variants = a.variants.len().max(1) as u128;
+        let variants = a.method.variants().len().max(1) as u128;
         // Weights and biases of one member of a stacked ensemble with these layer sizes.
         let params = |input: u128, output: u128| -> u128 {
             let dims: Vec<u128> = std::iter::once(input)
@@ -694,8 +1027,11 @@ impl Config {
             .saturating_mul(5);
         let row = 2 * obs + act + 2;
         let mut rows = a.replay_capacity as u128;
-        if !a.variants.is_empty() {
-            rows += (a.replay_capacity as u128 / a.validation_every.max(1) as u128).max(1);
+        if let Method::Avtd {
+            validation_every, ..
+        } = a.method
+        {
+            rows += (a.replay_capacity as u128 / validation_every.max(1) as u128).max(1);
         }
         let to_bytes = |floats: u128| floats.saturating_mul(4).min(u64::MAX as u128) as u64;
         Ok(MemoryEstimate {
@@ -1244,6 +1580,114 @@ mod tests {
         assert!(e.contains("eval.episodes = 1000000000"), "{e}");
     }
 
+    /// The method keys of every shipped baseline make the method they name, and a config
+    /// writes them back as the same keys (config.toml, state.json), so files and checkpoints of
+    /// earlier versions read the same.
+    #[test]
+    fn method_keys_make_one_method_and_are_written_back_unchanged() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/baselines");
+        let read = |name: &str| {
+            let text = std::fs::read_to_string(root.join(name)).unwrap();
+            Config::from_toml_with_overrides(&text, &[]).unwrap()
+        };
+        let selkd = |d: Distillation| Method::Selkd {
+            target: Formation::MaxMin,
+            aqe_drop: 1,
+            sharing: Sharing::PerUpdate,
+            distillation: d,
+        };
+        for (file, method) in [
+            ("redq.toml", selkd(Distillation::default())),
+            (
+                "selkd-without-kd.toml",
+                selkd(Distillation {
+                    kd_actors: Some(vec![0]),
+                    without_rl: false,
+                }),
+            ),
+            (
+                "selkd-without-rl.toml",
+                selkd(Distillation {
+                    kd_actors: None,
+                    without_rl: true,
+                }),
+            ),
+            ("aqe.toml", Method::selkd(Formation::MaxAqe)),
+            (
+                "dns.toml",
+                Method::Dns {
+                    target: Formation::MaxMin,
+                    aqe_drop: 1,
+                    trained_critics: 3,
+                    distillation: Distillation::default(),
+                },
+            ),
+            ("dpd.toml", Method::Dpd { without_rl: false }),
+            (
+                "avtd.toml",
+                Method::Avtd {
+                    variants: vec![
+                        Regulariser::None,
+                        Regulariser::LayerNorm,
+                        Regulariser::WeightDecay,
+                    ],
+                    validation_every: 10,
+                    weight_decay: 1e-4,
+                },
+            ),
+        ] {
+            let c = read(file);
+            assert_eq!(c.algo.method, method, "{file}");
+            // The written config states the file's own keys and reads back equal.
+            let text = c.to_toml();
+            let file_keys: toml::Table =
+                toml::from_str(&std::fs::read_to_string(root.join(file)).unwrap()).unwrap();
+            let written: toml::Table = toml::from_str(&text).unwrap();
+            for (k, v) in file_keys["algo"].as_table().unwrap() {
+                assert_eq!(written["algo"].get(k), Some(v), "{file}: algo.{k}");
+            }
+            assert_eq!(Config::from_toml_with_overrides(&text, &[]).unwrap(), c);
+            let json = serde_json::to_string(&c).unwrap();
+            assert_eq!(serde_json::from_str::<Config>(&json).unwrap(), c, "{file}");
+        }
+        // DPD with w/o RL is a combination the keys have always allowed.
+        let c = Config::from_toml_with_overrides(
+            "",
+            &["algo.paired_critics=true", "algo.without_rl=true", "algo.actors=2", "algo.critics=4"]
+                .map(String::from),
+        )
+        .unwrap();
+        assert_eq!(c.algo.method, Method::Dpd { without_rl: true });
+        // Combinations no method has are one-line config errors naming the keys.
+        for (sets, says) in [
+            (
+                &["algo.paired_critics=true", "algo.sharing=\"per-critic\""][..],
+                "algo.paired_critics needs",
+            ),
+            (
+                &["algo.paired_critics=true", "algo.kd_actors=[0]", "algo.actors=2", "algo.critics=4"][..],
+                "algo.kd_actors cannot be combined with algo.paired_critics",
+            ),
+            (
+                &["algo.paired_critics=true", "algo.actors=3", "algo.critics=4"][..],
+                "algo.paired_critics needs at least 2 actors, algo.critics (4) a multiple of algo.actors (3)",
+            ),
+            (
+                &["algo.variants=[\"none\"]", "algo.actors=1", "algo.without_rl=true"][..],
+                "algo.variants (AVTD)",
+            ),
+        ] {
+            let e = err("", sets);
+            assert!(
+                e.starts_with("config: ")
+                    && !e.contains("cannot parse")
+                    && e.contains(says)
+                    && !e.contains('\n'),
+                "{sets:?}: {e}"
+            );
+        }
+    }
+
     #[test]
     fn overrides_parse_numbers_lists_and_strings() {
         let sets = [
@@ -1257,6 +1701,6 @@ mod tests {
         assert_eq!(c.algo.hidden, vec![64, 64]);
         assert_eq!(c.run.mode, Mode::Async);
         assert_eq!(c.algo.kd_weight, 0.5);
-        assert_eq!(c.algo.sharing, Sharing::PerCritic);
+        assert_eq!(c.algo.method.sharing(), Sharing::PerCritic);
     }
 }

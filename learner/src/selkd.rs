@@ -16,12 +16,15 @@
 //!         and tune α_i toward the target entropy.
 //! ```
 //!
-//! The AVTD baseline (`algo.variants`) reuses the same steps for V whole agents side by side:
-//! variant v is actor v with its own N critics (in the target, its own subset, action and α; in
-//! its objective, its own critics' mean) and its own regulariser; [`Selkd::select_variant`] then
-//! lets the variant with the lowest TD error on held-out transitions act.
+//! The method ([`Method`]: SELKD, DNS, DPD or AVTD) is resolved once, in [`Selkd::new`], into
+//! three small choices that the lines above then follow without asking which method runs:
+//! [`TargetPlan`] (line 11: whose next actions go through which target critics), [`CriticStep`]
+//! (lines 12–13: every critic, or a k-DPP's draw) and [`ActorObjective`] (lines 18–19: which
+//! critics judge an actor, whom it distils toward, whether it learns by RL). AVTD's V agents side
+//! by side are V actors, each with its own N critics; its held-out transitions and the choice of
+//! the variant that acts are its own state, [`Avtd`].
 
-use crate::config::{ActorQ, AlgoConfig, Backbone, Regulariser, Sharing};
+use crate::config::{ActorQ, AlgoConfig, Backbone, Distillation, Method, Regulariser, Sharing};
 use crate::distillation::gaussian_kl;
 use crate::dpp;
 use crate::ensemble::{half_mean_square, Ensemble};
@@ -62,13 +65,101 @@ pub struct Selkd {
     /// Off (`None`) in training. When `Some`, every random draw is appended to it, so that a test
     /// can replay the same rounds in an independent implementation (`learner/tests/crosscheck.rs`).
     pub draws: Option<Vec<Draw>>,
-    /// AVTD: the variant that acts (its actor's weights are what workers get), and each
-    /// variant's TD error on the last validation batch.
+    /// Lines 10–11 of the method.
+    target_plan: TargetPlan,
+    /// Lines 12–13 of the method.
+    critic_step: CriticStep,
+    /// Lines 18–19 of the method.
+    objective: ActorObjective,
+    /// AVTD's held-out transitions and selection; `None` for every other method.
+    pub avtd: Option<Avtd>,
+}
+
+/// Lines 10–11, resolved from the method: whose next actions go through which target critics.
+enum TargetPlan {
+    /// Every actor's next action through each group's random M of the N critics, reduced by
+    /// `formation` (inner over the subset, outer over the actors); one group of rows per update,
+    /// or one per critic (`per-critic`). SELKD, DNS, and the methods that are SELKD with settings.
+    Shared {
+        groups: usize,
+        formation: Formation,
+        aqe_drop: usize,
+    },
+    /// Actor i's next action through `per_actor` critics of its own only, their min (no max over
+    /// actors); critic j regresses on its owner's y. `drawn`: AVTD takes a fresh M of its
+    /// variant's N every update; DPD takes all N/K it owns (line 10 still draws M of N, unused,
+    /// as it always has, so that runs and the recorded draws stay the same).
+    Own { per_actor: usize, drawn: bool },
+}
+
+/// Lines 12–13, resolved from the method: which critics step on their loss.
+enum CriticStep {
+    /// All N, with Polyak averaging in the optimiser's pass; `decay`: AVTD's weight-decay
+    /// variants' critics (member indices) and c, whose ½ c ‖W‖² joins their loss.
+    All { decay: Option<(Tensor, f64)> },
+    /// DNS: only k critics, drawn by a k-DPP over how alike their values on the batch are; the
+    /// others keep their weights and Adam state.
+    Dpp { k: usize },
+}
+
+/// Lines 18–19, resolved from the method: what each actor optimises.
+struct ActorObjective {
+    /// Whose critics judge actor i's action: all N (SELKD, DNS), or only its own (DPD, AVTD).
+    own_critics: bool,
+    /// Whom actor i distils toward.
+    reference: Reference,
+    /// Which actors have the distillation term.
+    distils: Distils,
+    /// Per actor: 1 if it optimises the RL objective, 0 if it only distils (w/o RL: all but 0).
+    rl: Vec<f32>,
+}
+
+enum Reference {
+    /// The best actor by the ranking (SELKD).
+    Best,
+    /// Actor i+1 (DPD).
+    Peer,
+}
+
+enum Distils {
+    /// Every actor but the best, or (w/o KD) only the listed ones, the best never.
+    AllButBest(Option<Vec<usize>>),
+    /// Every actor (DPD: each toward its peer).
+    All,
+    /// None (AVTD's variants are independent agents).
+    None,
+}
+
+impl ActorObjective {
+    fn selkd(d: &Distillation, actors: usize) -> Self {
+        ActorObjective {
+            own_critics: false,
+            reference: Reference::Best,
+            distils: Distils::AllButBest(d.kd_actors.clone()),
+            rl: rl_mask(actors, d.without_rl),
+        }
+    }
+}
+
+/// 1 for every actor that optimises the RL objective: all, or (w/o RL) actor 0 alone.
+fn rl_mask(actors: usize, without_rl: bool) -> Vec<f32> {
+    (0..actors)
+        .map(|i| if without_rl && i > 0 { 0.0 } else { 1.0 })
+        .collect()
+}
+
+/// AVTD's own state: the transitions it holds out and the variant that acts.
+pub struct Avtd {
+    /// Each variant's regulariser.
+    pub variants: Vec<Regulariser>,
+    /// The held-out validation transitions (every `validation_every`-th received), never
+    /// trained on.
+    pub validation: ReplayBuffer,
+    validation_every: u64,
+    /// The variant that acts: its actor's weights are what workers get.
     pub selected: usize,
+    /// Each variant's TD error on the last validation batch.
     pub validation_td: Vec<f64>,
-    /// AVTD: the critics with L2 weight decay (member indices) and its coefficient c; `None`
-    /// when no variant has one.
-    critic_decay: Option<(Tensor, f64)>,
 }
 
 /// AVTD re-selects its acting variant every this many rounds (our choice: often enough to follow
@@ -107,38 +198,114 @@ impl Selkd {
         seed: u64,
     ) -> Self {
         // AVTD: V agents, each with the config's actor and N critics, stacked variant by variant.
-        let variants = cfg.variants.len();
+        let variants = cfg.method.variants().to_vec();
         let per_variant = cfg.critics;
         let cfg = &AlgoConfig {
-            actors: cfg.actors * variants.max(1),
-            critics: cfg.critics * variants.max(1),
+            actors: cfg.actors * variants.len().max(1),
+            critics: cfg.critics * variants.len().max(1),
             ..cfg.clone()
         };
-        let regulariser_of_critic = |j: usize| cfg.variants[j / per_variant];
+        let regulariser_of_critic = |j: usize| variants[j / per_variant];
         // Line 1: random, independent initialisation of every actor and critic; targets copy critics.
         let mut rng = Pcg64::seed_from_u64(seed);
         let dims = |input: usize, out: usize| [vec![input], cfg.hidden.clone(), vec![out]].concat();
         let actors = Ensemble::new(cfg.actors, &dims(obs_dim, 2 * act_dim), device, &mut rng);
         let mut critics = Ensemble::new(cfg.critics, &dims(obs_dim + act_dim, 1), device, &mut rng);
-        let mut critic_decay = None;
-        if variants > 0 {
-            let of = |r: Regulariser| -> Vec<bool> {
-                (0..cfg.critics)
-                    .map(|j| regulariser_of_critic(j) == r)
-                    .collect()
-            };
-            critics = critics.with_layer_norm(&of(Regulariser::LayerNorm));
-            let decayed: Vec<i64> = (0..cfg.critics)
-                .filter(|&j| regulariser_of_critic(j) == Regulariser::WeightDecay)
-                .map(|j| j as i64)
-                .collect();
-            critic_decay = (!decayed.is_empty() && cfg.weight_decay > 0.0).then(|| {
+        let (n, k) = (cfg.critics, cfg.actors);
+        let (target_plan, critic_step, objective, avtd) = match &cfg.method {
+            Method::Selkd {
+                target,
+                aqe_drop,
+                sharing,
+                distillation,
+            } => (
+                TargetPlan::Shared {
+                    groups: match sharing {
+                        Sharing::PerUpdate => 1,
+                        Sharing::PerCritic => n,
+                    },
+                    formation: *target,
+                    aqe_drop: *aqe_drop,
+                },
+                CriticStep::All { decay: None },
+                ActorObjective::selkd(distillation, k),
+                None,
+            ),
+            Method::Dns {
+                target,
+                aqe_drop,
+                trained_critics,
+                distillation,
+            } => (
+                TargetPlan::Shared {
+                    groups: 1,
+                    formation: *target,
+                    aqe_drop: *aqe_drop,
+                },
+                CriticStep::Dpp {
+                    k: *trained_critics,
+                },
+                ActorObjective::selkd(distillation, k),
+                None,
+            ),
+            Method::Dpd { without_rl } => (
+                TargetPlan::Own {
+                    per_actor: n / k,
+                    drawn: false,
+                },
+                CriticStep::All { decay: None },
+                ActorObjective {
+                    own_critics: true,
+                    reference: Reference::Peer,
+                    distils: Distils::All,
+                    rl: rl_mask(k, *without_rl),
+                },
+                None,
+            ),
+            Method::Avtd {
+                variants,
+                validation_every,
+                weight_decay,
+            } => {
+                let of = |r: Regulariser| -> Vec<bool> {
+                    (0..n).map(|j| regulariser_of_critic(j) == r).collect()
+                };
+                critics = critics.with_layer_norm(&of(Regulariser::LayerNorm));
+                let decayed: Vec<i64> = (0..n)
+                    .filter(|&j| regulariser_of_critic(j) == Regulariser::WeightDecay)
+                    .map(|j| j as i64)
+                    .collect();
+                let decay = (!decayed.is_empty() && *weight_decay > 0.0)
+                    .then(|| (Tensor::from_slice(&decayed).to_device(device), *weight_decay));
+                // The validation rows: the same FIFO, their share of the capacity.
+                let capacity = (cfg.replay_capacity as u64 / validation_every).max(1);
                 (
-                    Tensor::from_slice(&decayed).to_device(device),
-                    cfg.weight_decay,
+                    TargetPlan::Own {
+                        per_actor: per_variant,
+                        drawn: true,
+                    },
+                    CriticStep::All { decay },
+                    ActorObjective {
+                        own_critics: true,
+                        reference: Reference::Best,
+                        distils: Distils::None,
+                        rl: rl_mask(k, false),
+                    },
+                    Some(Avtd {
+                        variants: variants.clone(),
+                        validation: ReplayBuffer::new(
+                            capacity as usize,
+                            obs_dim,
+                            act_dim,
+                            device,
+                        ),
+                        validation_every: *validation_every,
+                        selected: 0,
+                        validation_td: vec![f64::NAN; variants.len()],
+                    }),
                 )
-            });
-        }
+            }
+        };
         if cfg.critic_matmul == crate::config::Precision::Bf16 {
             critics.matmul = Kind::BFloat16;
         }
@@ -167,20 +334,17 @@ impl Selkd {
             critic_updates: 0,
             actor_updates: 0,
             draws: None,
-            selected: 0,
-            validation_td: vec![f64::NAN; variants],
-            critic_decay,
+            target_plan,
+            critic_step,
+            objective,
+            avtd,
         }
-    }
-
-    /// AVTD: whether this learner trains variants side by side.
-    fn avtd(&self) -> bool {
-        !self.cfg.variants.is_empty()
     }
 
     /// Lines 7–20 of Algorithm 1: G critic updates, then one update of every actor. With
     /// `actor_updates_per_round` = U > 1 (not Algorithm 1), the actors are updated after each of
-    /// the last U critic updates; their statistics are the last update's.
+    /// the last U critic updates; their statistics are the last update's. AVTD then reports its
+    /// acting variant's figures and may choose another to act.
     pub fn train_round(&mut self, replay: &mut ReplayBuffer, best: usize) -> RoundStats {
         let mut stats = RoundStats::default();
         let g = self.cfg.utd;
@@ -192,7 +356,7 @@ impl Selkd {
                 self.update_actors(replay, best, &mut stats);
             }
         }
-        if self.avtd() {
+        if let Some(avtd) = &self.avtd {
             // Per-actor figures are the acting actor's: the variant that acts.
             for v in [
                 &mut stats.actor_loss,
@@ -200,67 +364,73 @@ impl Selkd {
                 &mut stats.kl_to_best,
                 &mut stats.entropy,
             ] {
-                *v = vec![v[self.selected]];
+                *v = vec![v[avtd.selected]];
             }
+            self.select_variant();
         }
         stats
     }
 
     /// One critic update (lines 8–13). Returns (loss, mean Q).
     pub fn update_critics(&mut self, replay: &mut ReplayBuffer) -> (f64, f64) {
-        let (n, m, b) = (self.cfg.critics, self.cfg.subset, self.cfg.batch_size);
         // Lines 9–10. per-update: one batch and subset for all N critics (REDQ's code);
         // per-critic: critic j gets its own batch and subset, as Algorithm 1 prints it.
-        let groups = match self.cfg.sharing {
-            Sharing::PerUpdate => 1,
-            Sharing::PerCritic => n,
+        let groups = match self.target_plan {
+            TargetPlan::Shared { groups, .. } => groups,
+            TargetPlan::Own { .. } => 1,
         };
-        let batch = replay.sample(groups, b, &mut self.rng);
-        let subsets = if self.avtd() {
-            self.variant_subsets()
-        } else {
-            (0..groups)
-                .flat_map(|_| {
-                    rand::seq::index::sample(&mut self.rng, n, m)
-                        .into_iter()
-                        .map(|j| j as i64)
-                        .collect::<Vec<_>>()
-                })
-                .collect()
-        };
+        let batch = replay.sample(groups, self.cfg.batch_size, &mut self.rng);
+        let subsets = self.draw_subsets(groups);
         self.record(|| Draw::CriticBatch(batch.shallow_clone(), subsets.clone()));
         self.update_critics_on(&batch, &subsets)
     }
 
+    /// Line 10: `groups` random subsets of M of the N critics (`groups` × M indices); AVTD: M of
+    /// each variant's own N (V × M).
+    fn draw_subsets(&mut self, groups: usize) -> Vec<i64> {
+        let (n, m) = (self.cfg.critics, self.cfg.subset);
+        let (blocks, per_block, offset) = match self.target_plan {
+            TargetPlan::Own {
+                per_actor,
+                drawn: true,
+            } => (self.cfg.actors, per_actor, per_actor),
+            _ => (groups, n, 0),
+        };
+        (0..blocks)
+            .flat_map(|i| {
+                rand::seq::index::sample(&mut self.rng, per_block, m)
+                    .into_iter()
+                    .map(move |j| (i * offset + j) as i64)
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    }
+
     /// Lines 11–13 on a drawn mini-batch (`groups` × B rows) and its subsets (`groups` × M indices).
     pub fn update_critics_on(&mut self, batch: &Batch, subsets: &[i64]) -> (f64, f64) {
-        let (n, b) = (self.cfg.critics, self.cfg.batch_size);
-        let groups = batch.obs.size()[0] as usize;
-        // Line 11: the in-target max-min value, without gradient.
-        let y = tch::no_grad(|| {
-            if self.cfg.paired_critics {
-                self.paired_target(&batch.reward, &batch.terminated, &batch.next_obs)
-            } else if self.avtd() {
-                self.variant_target(&batch.reward, &batch.terminated, &batch.next_obs, subsets)
-            } else {
-                self.target(
-                    &batch.reward,
-                    &batch.terminated,
-                    &batch.next_obs,
-                    subsets,
-                    groups,
-                )
-            }
-        });
+        let n = self.cfg.critics;
+        // Line 11: the target, without gradient.
+        let y = tch::no_grad(|| self.target(batch, subsets));
         // Line 12: every critic regresses on its y (all N at once; each critic's gradient is
         // its own loss's).
         let (q, per_critic) = self.critics.regress(&self.critic_inputs(batch), &y);
         let loss = per_critic.sum(Kind::Float);
-        match self.cfg.trained_critics {
-            None => {
+        self.step_critics(&q);
+        self.critic_updates += 1;
+        (
+            loss.double_value(&[]) / n as f64,
+            q.mean(Kind::Float).double_value(&[]),
+        )
+    }
+
+    /// Line 12's step on the critics' gradients and line 13's Polyak averaging of the targets.
+    /// `q`: the critics' values on the batch, `[N, rows]`, which DNS's draw compares.
+    fn step_critics(&mut self, q: &Tensor) {
+        match &self.critic_step {
+            CriticStep::All { decay } => {
                 // AVTD's weight-decay variants: ½ c ‖W‖² over their critics' weight matrices
                 // in the loss, added as its gradient c·W (as torch.optim.Adam's weight_decay).
-                if let Some((members, c)) = &self.critic_decay {
+                if let Some((members, c)) = decay {
                     tch::no_grad(|| {
                         for layer in &self.critics.layers {
                             let decay = layer.weight.index_select(0, members) * *c;
@@ -276,9 +446,7 @@ impl Selkd {
                     self.cfg.polyak,
                 );
             }
-            // DNS: only k critics learn from this batch, drawn by a k-DPP over how alike the
-            // critics' values on it are; the others keep their weights and Adam state.
-            Some(k) => {
+            &CriticStep::Dpp { k } => {
                 let flat = Vec::<f64>::try_from(
                     &q.detach()
                         .reshape([-1])
@@ -286,21 +454,19 @@ impl Selkd {
                         .to_kind(Kind::Double),
                 )
                 .expect("f64 values");
-                let values: Vec<Vec<f64>> = flat.chunks(b).map(<[f64]>::to_vec).collect();
+                let values: Vec<Vec<f64>> = flat
+                    .chunks(self.cfg.batch_size)
+                    .map(<[f64]>::to_vec)
+                    .collect();
                 let trained = dpp::sample_k_dpp(&dpp::linear_cka(&values), k, &mut self.rng);
                 // Every critic has its gradient; only the drawn ones step on it.
                 self.critic_opt
-                    .step_members(&self.critics.params(), &trained, n);
+                    .step_members(&self.critics.params(), &trained, self.cfg.critics);
                 // Line 13: Polyak averaging of the target critics after every critic update.
                 self.target_critics
                     .polyak_toward(&self.critics, self.cfg.polyak);
             }
         }
-        self.critic_updates += 1;
-        (
-            loss.double_value(&[]) / n as f64,
-            q.mean(Kind::Float).double_value(&[]),
-        )
     }
 
     /// The next actions `ã'_i` for states `[K, R, obs]` (row block i for actor i) and their log-probs
@@ -326,30 +492,88 @@ impl Selkd {
         }
     }
 
-    /// The DPD baseline's target (`algo.paired_critics`): actor i owns critics `j·K/N = i`; each
-    /// actor's soft value takes the min over its own target critics (no max over actors), and its
-    /// critics regress on that. One mini-batch per update. Returns y per critic, `[N, B]`.
-    fn paired_target(&mut self, reward: &Tensor, terminated: &Tensor, next_obs: &Tensor) -> Tensor {
-        let (k, n, b) = (
-            self.cfg.actors as i64,
-            self.cfg.critics as i64,
-            self.cfg.batch_size as i64,
-        );
-        let s2 = next_obs.reshape([1, b, -1]).expand([k, b, -1], false);
+    /// Line 11 for `batch` (G groups of B rows) and line 10's `subsets`, as the method's
+    /// [`TargetPlan`] says: `y = r + γ(1 − d) · outer_i [inner_m Q̄_m(s', ã'_i) − α_i log π_i(ã'_i|s')]`.
+    /// Returns `[G, B]` (shared critics: group g's y for the critics trained on group g), or y per
+    /// critic `[N, B]` (own critics: its owner's y).
+    fn target(&mut self, batch: &Batch, subsets: &[i64]) -> Tensor {
+        let (k, n) = (self.cfg.actors as i64, self.cfg.critics as i64);
+        let (g, b) = (batch.next_obs.size()[0], batch.next_obs.size()[1]);
+        // ã'_i for every actor i on every next state.
+        let s2 = batch
+            .next_obs
+            .reshape([1, g * b, -1])
+            .expand([k, g * b, -1], false);
         let (a2, logp2) = self.next_actions(&s2);
-        let x2 = Tensor::cat(&[&s2, &a2], -1)
-            .reshape([1, k * b, -1])
-            .expand([n, k * b, -1], false);
-        let q = self.target_critics.forward(&x2).view([n, k, b]);
-        let owned: Vec<Tensor> = (0..k)
-            .map(|i| {
-                let own = Tensor::from_slice(&self.critics_of(i)).to_device(self.device);
-                q.index_select(0, &own).select(1, i).amin(0, false)
-            })
-            .collect();
-        let soft_value = Tensor::stack(&owned, 0) - self.alpha().view([k, 1]) * logp2;
-        let y: Tensor = reward + (1.0 - terminated) * self.cfg.gamma * soft_value; // [K, B]
-        y.index_select(0, &self.critic_owners())
+        let x2 = Tensor::cat(&[&s2, &a2], -1);
+        // Heads: the rows of y before they reach the critics. Shared: one per group, every
+        // actor's next actions through the group's subset; own: one per actor (G = 1), its next
+        // actions through its critics.
+        let own = matches!(self.target_plan, TargetPlan::Own { .. });
+        let (critics, formation, aqe_drop) = match self.target_plan {
+            TargetPlan::Shared {
+                formation,
+                aqe_drop,
+                ..
+            } => (subsets.to_vec(), formation, aqe_drop),
+            TargetPlan::Own { drawn: true, .. } => (subsets.to_vec(), Formation::MaxMin, 0),
+            TargetPlan::Own { drawn: false, .. } => ((0..n).collect(), Formation::MaxMin, 0),
+        };
+        let (heads, actors_per_head) = if own { (k, 1) } else { (g, k) };
+        let m = critics.len() as i64 / heads;
+        let x2 = if own {
+            x2.view([k, 1, b, -1])
+        } else {
+            x2.view([k, g, b, -1])
+                .permute([1, 0, 2, 3])
+                .reshape([g, 1, k * b, -1])
+        };
+        let rows = actors_per_head * b;
+        let x2 = x2
+            .expand([heads, m, rows, -1], false)
+            .reshape([heads * m, rows, -1]);
+        let index = Tensor::from_slice(&critics).to_device(self.device);
+        let q_next = self
+            .target_critics
+            .select(&index)
+            .forward(&x2)
+            .view([heads, m, actors_per_head, b]);
+        let (logp2, alpha) = if own {
+            (logp2.view([k, 1, b]), self.alpha().view([k, 1, 1]))
+        } else {
+            (
+                logp2.view([k, g, b]).permute([1, 0, 2]),
+                self.alpha().view([1, k, 1]),
+            )
+        };
+        // REM's mixture: uniform weights, normalised, fresh for every group and update.
+        let rem_weights = (formation == Formation::MaxRem).then(|| {
+            let w: Vec<f32> = (0..heads * m)
+                .map(|_| self.rng.gen_range(0.0f32..1.0))
+                .collect();
+            let w = Tensor::from_slice(&w).view([heads, m]).to_device(self.device);
+            self.record(|| Draw::Uniform(w.shallow_clone()));
+            &w / w.sum_dim_intlist(1, true, Kind::Float)
+        });
+        let opts = InnerOptions {
+            rem_weights: rem_weights.as_ref(),
+            aqe_drop,
+        };
+        let y = critic_target(
+            &batch.reward,
+            &batch.terminated,
+            &q_next,
+            &logp2,
+            &alpha,
+            self.cfg.gamma,
+            formation,
+            &opts,
+        );
+        if own {
+            y.index_select(0, &self.critic_owners())
+        } else {
+            y
+        }
     }
 
     /// Every critic's values on `batch`'s (s, a) (one group of rows), `[N, rows]`, and its TD error
@@ -369,156 +593,65 @@ impl Selkd {
         Tensor::cat(&[&batch.obs, &batch.act], -1).expand([n, rows, -1], false)
     }
 
-    /// Paired critics and AVTD: which actor owns each critic (⌊j·K/N⌋), `[N]` indices.
+    /// Own critics (DPD, AVTD): which actor owns each critic (⌊j·K/N⌋), `[N]` indices.
     fn critic_owners(&self) -> Tensor {
         let (k, n) = (self.cfg.actors as i64, self.cfg.critics as i64);
         let owner: Vec<i64> = (0..n).map(|j| j * k / n).collect();
         Tensor::from_slice(&owner).to_device(self.device)
     }
 
-    /// Paired critics and AVTD: the critics actor `i` owns (DPD: N/K consecutive critics; AVTD:
-    /// variant i's N).
-    fn critics_of(&self, i: i64) -> Vec<i64> {
-        let (k, n) = (self.cfg.actors as i64, self.cfg.critics as i64);
-        (0..n).filter(|j| j * k / n == i).collect()
-    }
-
-    /// AVTD: each variant's own random subset of M of its N critics, `[V × M]` indices.
-    fn variant_subsets(&mut self) -> Vec<i64> {
-        let (v, m) = (self.cfg.actors, self.cfg.subset);
-        let per_variant = self.cfg.critics / v;
-        (0..v)
-            .flat_map(|i| {
-                rand::seq::index::sample(&mut self.rng, per_variant, m)
-                    .into_iter()
-                    .map(move |j| (i * per_variant + j) as i64)
-                    .collect::<Vec<_>>()
-            })
-            .collect()
-    }
-
-    /// AVTD's target: variant v's REDQ target, `r + γ(1 − d)(min_{m ∈ 𝓜_v} Q̄_m(s', ã'_v) −
-    /// α_v log π_v(ã'_v|s'))`, with its own actor, α and subset (`subsets`, V × M indices).
-    /// Returns y per critic, `[V·N, B]`.
-    fn variant_target(
-        &mut self,
-        reward: &Tensor,
-        terminated: &Tensor,
-        next_obs: &Tensor,
-        subsets: &[i64],
-    ) -> Tensor {
-        let (v, m) = (self.cfg.actors as i64, self.cfg.subset as i64);
-        let b = next_obs.size()[1];
-        let s2 = next_obs.reshape([1, b, -1]).expand([v, b, -1], false);
-        let (a2, logp2) = self.next_actions(&s2);
-        // Variant v's next state-action pairs go through its M subset critics.
-        let x2 = Tensor::cat(&[&s2, &a2], -1)
-            .unsqueeze(1)
-            .expand([v, m, b, -1], false)
-            .reshape([v * m, b, -1]);
-        let index = Tensor::from_slice(subsets).to_device(self.device);
-        let q_next = self
-            .target_critics
-            .select(&index)
-            .forward(&x2)
-            .view([v, m, b])
-            .amin(1, false);
-        let soft_value = q_next - self.alpha().view([v, 1]) * logp2;
-        let y: Tensor =
-            reward.view([1, b]) + (1.0 - terminated.view([1, b])) * self.cfg.gamma * soft_value;
-        y.index_select(0, &self.critic_owners())
-    }
-
     /// AVTD's selection: each variant's TD error on a batch of held-out validation transitions
     /// (its critics' mean of ½ (Q_j(s, a) − y_j)², y as in training), and the variant with the
-    /// lowest acts from now on. Runs every [`SELECT_EVERY_ROUNDS`] rounds once `validation` holds
-    /// a mini-batch. Returns whether the acting variant changed.
-    pub fn select_variant(&mut self, validation: &mut ReplayBuffer) -> bool {
-        if !self.avtd()
-            || validation.len() < self.cfg.batch_size
+    /// lowest acts from now on. Runs every [`SELECT_EVERY_ROUNDS`] rounds once the validation
+    /// rows hold a mini-batch. Returns whether the acting variant changed.
+    pub fn select_variant(&mut self) -> bool {
+        let Some(avtd) = &mut self.avtd else {
+            return false;
+        };
+        if avtd.validation.len() < self.cfg.batch_size
             || !self.actor_updates.is_multiple_of(SELECT_EVERY_ROUNDS)
         {
             return false;
         }
-        let batch = validation.sample(1, 4 * self.cfg.batch_size, &mut self.rng);
-        let subsets = self.variant_subsets();
+        let batch = avtd
+            .validation
+            .sample(1, 4 * self.cfg.batch_size, &mut self.rng);
+        let subsets = self.draw_subsets(1);
         self.record(|| Draw::CriticBatch(batch.shallow_clone(), subsets.clone()));
-        self.validation_td = tch::no_grad(|| self.validation_errors(&batch, &subsets));
-        let before = self.selected;
-        self.selected = (0..self.validation_td.len())
-            .min_by(|&a, &b| self.validation_td[a].total_cmp(&self.validation_td[b]))
-            .expect("at least one variant");
-        self.selected != before
-    }
-
-    /// Each variant's validation TD error on `batch` (one group of rows) with `subsets` (V × M).
-    fn validation_errors(&mut self, batch: &Batch, subsets: &[i64]) -> Vec<f64> {
-        let v = self.cfg.actors as i64;
-        let y = self.variant_target(&batch.reward, &batch.terminated, &batch.next_obs, subsets);
-        let (_, per_critic) = self.td_errors(batch, &y);
-        let per_variant = per_critic.view([v, -1]).mean_dim(1, false, Kind::Double);
-        Vec::<f64>::try_from(per_variant.to_device(Device::Cpu)).expect("f64 errors")
-    }
-
-    /// y for `groups` groups of next states `[groups, B, obs]`, each with its own subset of M
-    /// critics (`subsets`, groups × M indices). Returns `[groups, B]`.
-    fn target(
-        &mut self,
-        reward: &Tensor,
-        terminated: &Tensor,
-        next_obs: &Tensor,
-        subsets: &[i64],
-        groups: usize,
-    ) -> Tensor {
-        let (k, m, b) = (
-            self.cfg.actors as i64,
-            self.cfg.subset as i64,
-            self.cfg.batch_size as i64,
-        );
-        let g = groups as i64;
-        // ã'_i ~ π_i(·|s') for every actor i on every next state.
-        let s2 = next_obs
-            .reshape([1, g * b, -1])
-            .expand([k, g * b, -1], false);
-        let (a2, logp2) = self.next_actions(&s2);
-        // Rows of group gi: (actor, row) pairs; each goes through that group's M target critics.
-        let x2 = Tensor::cat(&[&s2, &a2], -1)
-            .view([k, g, b, -1])
-            .permute([1, 0, 2, 3])
-            .reshape([g, 1, k * b, -1]);
-        let x2 = x2
-            .expand([g, m, k * b, -1], false)
-            .reshape([g * m, k * b, -1]);
-        let index = Tensor::from_slice(subsets).to_device(self.device);
-        let q_next = self
-            .target_critics
-            .select(&index)
-            .forward(&x2)
-            .view([g, m, k, b]);
-        let logp2 = logp2.view([k, g, b]).permute([1, 0, 2]);
-        // REM's mixture: uniform weights, normalised, fresh for every group and update.
-        let rem_weights = (self.cfg.target == Formation::MaxRem).then(|| {
-            let w: Vec<f32> = (0..g * m)
-                .map(|_| self.rng.gen_range(0.0f32..1.0))
-                .collect();
-            let w = Tensor::from_slice(&w).view([g, m]).to_device(self.device);
-            self.record(|| Draw::Uniform(w.shallow_clone()));
-            &w / w.sum_dim_intlist(1, true, Kind::Float)
+        let td = tch::no_grad(|| {
+            let y = self.target(&batch, &subsets);
+            let (_, per_critic) = self.td_errors(&batch, &y);
+            let per_variant = per_critic
+                .view([self.cfg.actors as i64, -1])
+                .mean_dim(1, false, Kind::Double);
+            Vec::<f64>::try_from(per_variant.to_device(Device::Cpu)).expect("f64 errors")
         });
-        let opts = InnerOptions {
-            rem_weights: rem_weights.as_ref(),
-            aqe_drop: self.cfg.aqe_drop,
-        };
-        critic_target(
-            reward,
-            terminated,
-            &q_next,
-            &logp2,
-            &self.alpha(),
-            self.cfg.gamma,
-            self.cfg.target,
-            &opts,
-        )
+        let avtd = self.avtd.as_mut().expect("AVTD");
+        let before = avtd.selected;
+        avtd.selected = (0..td.len())
+            .min_by(|&a, &b| td[a].total_cmp(&td[b]))
+            .expect("at least one variant");
+        avtd.validation_td = td;
+        let v = avtd.selected;
+        if v != before {
+            // Debug level: with close variants the selection can change every few rounds.
+            tracing::debug!(
+                round = self.actor_updates,
+                "AVTD: variant {v} ({:?}) acts now; validation TD errors {:?}",
+                avtd.variants[v],
+                avtd.validation_td
+            );
+        }
+        v != before
+    }
+
+    /// Where transition `n` (1-based, in arrival order, so sync runs reproduce) is stored:
+    /// AVTD's validation rows for every `validation_every`-th, else (`None`) the replay buffer.
+    pub fn held_out(&mut self, n: u64) -> Option<&mut ReplayBuffer> {
+        self.avtd
+            .as_mut()
+            .filter(|a| n.is_multiple_of(a.validation_every))
+            .map(|a| &mut a.validation)
     }
 
     /// Lines 16–20, all K actors at once, each on its own mini-batch.
@@ -528,98 +661,132 @@ impl Selkd {
         best: usize,
         stats: &mut RoundStats,
     ) {
+        let k = self.cfg.actors as i64;
+        let batch = replay.sample(self.cfg.actors, self.cfg.batch_size, &mut self.rng); // line 17
+        self.record(|| Draw::ActorBatch(batch.shallow_clone()));
+        let s = &batch.obs;
+        let (mu, log_std) = split_head(&self.actors.forward(s));
+        let (a, logp) = self.actions(&mu, &log_std);
+        let q = self.judged_value(s, &a);
+        let kl = self.distance_to_reference(s, &a, &mu, &log_std, best); // line 18
+        let kd = self.on_device(&self.kd_weights(best)).view([k, 1]);
+        let alpha = match self.cfg.backbone {
+            Backbone::Td3 => Tensor::zeros([k, 1], (Kind::Float, self.device)),
+            Backbone::Sac => self.alpha().view([k, 1]),
+        };
+        let rl = self.on_device(&self.objective.rl).view([k, 1]);
+        // Line 19 (as a loss to minimise).
+        let per_actor = (&rl * (&alpha * &logp - &q) + &kd * &kl).mean_dim(1, false, Kind::Float);
+        per_actor.sum(Kind::Float).backward();
+        self.actor_opt.step(&self.actors.params());
+        self.after_actor_step(&logp);
+        self.actor_updates += 1;
+        stats.actor_loss = Vec::<f64>::try_from(per_actor.detach().to_kind(Kind::Double)).unwrap();
+        stats.alpha = Vec::<f64>::try_from(self.alpha().to_kind(Kind::Double)).unwrap();
+        stats.kl_to_best =
+            Vec::<f64>::try_from(kl.detach().mean_dim(1, false, Kind::Double)).unwrap();
+        stats.entropy =
+            Vec::<f64>::try_from(-logp.detach().mean_dim(1, false, Kind::Double)).unwrap();
+    }
+
+    /// Each actor's action on its states and its log-prob, `[K, B, act]` and `[K, B]`: sampled
+    /// from π_i (SAC), or the deterministic action with no entropy term (TD3).
+    fn actions(&mut self, mu: &Tensor, log_std: &Tensor) -> (Tensor, Tensor) {
+        let (k, b) = (mu.size()[0], mu.size()[1]);
+        match self.cfg.backbone {
+            Backbone::Td3 => (
+                mu.tanh(),
+                Tensor::zeros([k, b], (Kind::Float, self.device)),
+            ),
+            Backbone::Sac => {
+                let eps = self.noise(&[k, b, self.act_dim as i64]);
+                sample(mu, log_std, &eps)
+            }
+        }
+    }
+
+    /// Line 19's value of actor i's action `a` on its states `s`, `[K, B]`: the critics' mean
+    /// `(1/N) Σ_j Q_j(s, ã_i(s))` (or, SAC's actor, min_j), over all N critics or (DPD, AVTD)
+    /// only the N/K it owns, so each critic sees only its owner's states. The critics are fixed
+    /// here, only the actor moves.
+    fn judged_value(&self, s: &Tensor, a: &Tensor) -> Tensor {
         let (k, n, b) = (
             self.cfg.actors as i64,
             self.cfg.critics as i64,
             self.cfg.batch_size as i64,
         );
-        let batch = replay.sample(self.cfg.actors, self.cfg.batch_size, &mut self.rng); // line 17
-        self.record(|| Draw::ActorBatch(batch.shallow_clone()));
-        let s = &batch.obs;
-        let (mu, log_std) = split_head(&self.actors.forward(s));
-        let td3 = self.cfg.backbone == Backbone::Td3;
-        let (a, logp) = if td3 {
-            (mu.tanh(), Tensor::zeros([k, b], (Kind::Float, self.device)))
-        } else {
-            let eps = self.noise(&[k, b, self.act_dim as i64]);
-            sample(&mu, &log_std, &eps)
-        };
-        // (1/N) Σ_j Q_j(s, ã_i(s)) (or, SAC's actor, min_j): the critics are fixed here, only
-        // the actor moves.
         let reduce = |q: &Tensor, dim: i64| match self.cfg.actor_q {
             ActorQ::Mean => q.mean_dim(dim, false, Kind::Float),
             ActorQ::Min => q.amin(dim, false),
         };
-        let q = if self.cfg.paired_critics || self.avtd() {
-            // DPD and AVTD: each actor is judged by its own critics only (the N/K consecutive
-            // critics j with ⌊j·K/N⌋ = i), so each critic sees only its owner's states.
-            let x = Tensor::cat(&[s, &a], -1).index_select(0, &self.critic_owners());
-            let q_own = self.critics.forward_fixed(&x).view([k, n / k, b]);
-            reduce(&q_own, 1)
+        if self.objective.own_critics {
+            let x = Tensor::cat(&[s, a], -1).index_select(0, &self.critic_owners());
+            reduce(&self.critics.forward_fixed(&x).view([k, n / k, b]), 1)
         } else {
-            let x = Tensor::cat(&[s, &a], -1)
+            let x = Tensor::cat(&[s, a], -1)
                 .reshape([1, k * b, -1])
                 .expand([n, k * b, -1], false);
             reduce(&self.critics.forward_fixed(&x).view([n, k, b]), 0)
-        };
-        // Line 18: distillation toward the best actor, held fixed, on actor i's own states.
-        // The reference each actor distils toward: the best actor (SELKD), or with paired critics
-        // (DPD) the next actor, its peer.
+        }
+    }
+
+    /// Line 18: each actor's distance to its reference actor (the best, or DPD's peer), held
+    /// fixed, on its own states, `[K, B]`. SAC: the KL of the two policies; TD3: the
+    /// mean-squared distance of the two deterministic actions (SPEC, TD3 backbone: the mean over
+    /// action dimensions).
+    fn distance_to_reference(
+        &self,
+        s: &Tensor,
+        a: &Tensor,
+        mu: &Tensor,
+        log_std: &Tensor,
+        best: usize,
+    ) -> Tensor {
+        let k = self.cfg.actors as i64;
         let reference: Vec<i64> = (0..k)
-            .map(|i| {
-                if self.cfg.paired_critics {
-                    (i + 1) % k
-                } else {
-                    best as i64
-                }
+            .map(|i| match self.objective.reference {
+                Reference::Best => best as i64,
+                Reference::Peer => (i + 1) % k,
             })
             .collect();
-        let best_head = self
+        let reference_head = self
             .actors
             .select(&Tensor::from_slice(&reference).to_device(self.device))
             .forward(s);
-        let (mu_best, log_std_best) = split_head(&best_head);
-        // SAC: KL of the two policies; TD3: mean-squared distance of the two deterministic
-        // actions (SPEC, TD3 backbone: the mean over action dimensions).
-        let kl = if td3 {
-            (&a - mu_best.tanh())
+        let (mu_ref, log_std_ref) = split_head(&reference_head);
+        match self.cfg.backbone {
+            Backbone::Td3 => (a - mu_ref.tanh())
                 .square()
-                .mean_dim(-1, false, Kind::Float)
-        } else {
-            gaussian_kl(&mu, &log_std, &mu_best, &log_std_best)
-        };
-        // The best actor has no KD term; with `kd_actors` (ablation w/o KD) only those listed do.
-        let kd: Vec<f32> = (0..self.cfg.actors)
+                .mean_dim(-1, false, Kind::Float),
+            Backbone::Sac => gaussian_kl(mu, log_std, &mu_ref, &log_std_ref),
+        }
+    }
+
+    /// λ_KD for every actor that distils, 0 for the others (the best never distils toward
+    /// itself; w/o KD: only `kd_actors`; AVTD: none).
+    fn kd_weights(&self, best: usize) -> Vec<f32> {
+        (0..self.cfg.actors)
             .map(|i| {
-                // AVTD's variants are independent agents: none distils.
-                let distils = self.cfg.paired_critics
-                    || (!self.avtd()
-                        && i != best
-                        && self.cfg.kd_actors.as_ref().is_none_or(|l| l.contains(&i)));
+                let distils = match &self.objective.distils {
+                    Distils::AllButBest(only) => {
+                        i != best && only.as_ref().is_none_or(|l| l.contains(&i))
+                    }
+                    Distils::All => true,
+                    Distils::None => false,
+                };
                 if distils {
                     self.cfg.kd_weight as f32
                 } else {
                     0.0
                 }
             })
-            .collect();
-        let kd = Tensor::from_slice(&kd).to_device(self.device).view([k, 1]);
-        // Line 19 (as a loss to minimise).
-        let alpha = if td3 {
-            Tensor::zeros([k, 1], (Kind::Float, self.device))
-        } else {
-            self.alpha().view([k, 1])
-        };
-        // SELKD w/o RL (ablation): only actor 0 keeps the RL objective, the others only distil.
-        let mut rl = vec![1.0f32; self.cfg.actors];
-        if self.cfg.without_rl {
-            rl[1..].iter_mut().for_each(|v| *v = 0.0);
-        }
-        let rl = Tensor::from_slice(&rl).to_device(self.device).view([k, 1]);
-        let per_actor = (&rl * (&alpha * &logp - &q) + &kd * &kl).mean_dim(1, false, Kind::Float);
-        per_actor.sum(Kind::Float).backward();
-        self.actor_opt.step(&self.actors.params());
-        // Temperature: minimise −log α_i · (log π_i + target entropy), detached from the actor.
+            .collect()
+    }
+
+    /// After the actors' step: TD3's target actors follow them (Polyak); SAC's temperatures
+    /// minimise −log α_i · (log π_i + target entropy), detached from the actor, unless α is fixed.
+    fn after_actor_step(&mut self, logp: &Tensor) {
+        let k = self.cfg.actors as i64;
         if let Some(target_actors) = &mut self.target_actors {
             target_actors.polyak_toward(&self.actors, self.cfg.polyak);
         } else if self.cfg.fixed_alpha.is_none() {
@@ -630,13 +797,10 @@ impl Selkd {
             alpha_loss.backward();
             self.alpha_opt.step(&[&self.log_alpha]);
         }
-        self.actor_updates += 1;
-        stats.actor_loss = Vec::<f64>::try_from(per_actor.detach().to_kind(Kind::Double)).unwrap();
-        stats.alpha = Vec::<f64>::try_from(self.alpha().to_kind(Kind::Double)).unwrap();
-        stats.kl_to_best =
-            Vec::<f64>::try_from(kl.detach().mean_dim(1, false, Kind::Double)).unwrap();
-        stats.entropy =
-            Vec::<f64>::try_from(-logp.detach().mean_dim(1, false, Kind::Double)).unwrap();
+    }
+
+    fn on_device(&self, v: &[f32]) -> Tensor {
+        Tensor::from_slice(v).to_device(self.device)
     }
 
     /// α_i for every actor, `[K]`, without gradient.
@@ -667,8 +831,15 @@ impl Selkd {
 
     /// Acting actor `i`'s weights in the flat layout workers use (AVTD: the selected variant's).
     pub fn actor_weights(&self, i: usize) -> Vec<f32> {
-        let member = if self.avtd() { self.selected } else { i };
+        let member = self.avtd.as_ref().map_or(i, |a| a.selected);
         self.actors.member_flat(member as i64)
+    }
+
+    /// AVTD's selection (the acting variant, each variant's validation TD error), for metrics.
+    pub fn selection(&self) -> Option<(usize, &[f64])> {
+        self.avtd
+            .as_ref()
+            .map(|a| (a.selected, a.validation_td.as_slice()))
     }
 }
 
@@ -680,6 +851,16 @@ mod tests {
     use crate::config::Sharing;
     use crate::targets::Formation;
     use rand::Rng;
+
+    /// SELKD with these settings (the rest as Algorithm 1).
+    fn selkd_with(target: Formation, sharing: Sharing, distillation: Distillation) -> Method {
+        Method::Selkd {
+            target,
+            aqe_drop: 1,
+            sharing,
+            distillation,
+        }
+    }
 
     fn small(k: usize, n: usize, m: usize) -> AlgoConfig {
         AlgoConfig {
@@ -752,9 +933,12 @@ mod tests {
         let (obs, act) = (3, 2);
         let n = if paired { 2 * k } else { 5 };
         let cfg = AlgoConfig {
-            sharing,
+            method: if paired {
+                Method::Dpd { without_rl: false }
+            } else {
+                selkd_with(Formation::MaxMin, sharing, Distillation::default())
+            },
             backbone,
-            paired_critics: paired,
             ..small(k, n, m)
         };
         let b_size = cfg.batch_size as i64;
@@ -1038,8 +1222,14 @@ mod tests {
         let (k, n, obs, act, best, lambda) = (3, 3, 3, 2, 1, 0.7);
         let cfg = AlgoConfig {
             backbone,
-            without_rl,
-            kd_actors: kd_actors.clone(),
+            method: selkd_with(
+                Formation::MaxMin,
+                Sharing::PerUpdate,
+                Distillation {
+                    kd_actors: kd_actors.clone(),
+                    without_rl,
+                },
+            ),
             kd_weight: lambda,
             ..small(k, n, 2)
         };
@@ -1218,7 +1408,7 @@ mod tests {
         for sharing in [Sharing::PerUpdate, Sharing::PerCritic] {
             let (n, m, updates) = (5, 2, 300);
             let cfg = AlgoConfig {
-                sharing,
+                method: selkd_with(Formation::MaxMin, sharing, Distillation::default()),
                 hidden: vec![4],
                 ..small(1, n, m)
             };
@@ -1302,8 +1492,7 @@ mod tests {
                 Formation::MaxMax,
             ] {
                 let cfg = AlgoConfig {
-                    sharing,
-                    target,
+                    method: selkd_with(target, sharing, Distillation::default()),
                     ..small(3, 4, 2)
                 };
                 let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 1);
@@ -1403,7 +1592,11 @@ mod tests {
             let cfg = AlgoConfig {
                 backbone: Backbone::Td3,
                 kd_weight: 0.0,
-                paired_critics: paired,
+                method: if paired {
+                    Method::Dpd { without_rl: false }
+                } else {
+                    Method::default()
+                },
                 actor_q,
                 ..small(k, n, 2)
             };
@@ -1452,7 +1645,14 @@ mod tests {
     #[test]
     fn without_kd_only_the_listed_actor_distils() {
         let cfg = AlgoConfig {
-            kd_actors: Some(vec![0]),
+            method: selkd_with(
+                Formation::MaxMin,
+                Sharing::PerUpdate,
+                Distillation {
+                    kd_actors: Some(vec![0]),
+                    without_rl: false,
+                },
+            ),
             kd_weight: 1.0,
             fixed_alpha: Some(0.0),
             lr: 1e-2,
@@ -1483,7 +1683,7 @@ mod tests {
     #[test]
     fn paired_actors_distil_toward_each_other() {
         let cfg = AlgoConfig {
-            paired_critics: true,
+            method: Method::Dpd { without_rl: false },
             fixed_alpha: Some(0.0),
             lr: 1e-2,
             ..small(2, 4, 2)
@@ -1516,7 +1716,12 @@ mod tests {
     fn dns_trains_only_the_drawn_critics() {
         let (n, k) = (5usize, 2usize);
         let cfg = AlgoConfig {
-            trained_critics: Some(k),
+            method: Method::Dns {
+                target: Formation::MaxMin,
+                aqe_drop: 1,
+                trained_critics: k,
+                distillation: Distillation::default(),
+            },
             ..small(1, n, 2)
         };
         let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 4);
@@ -1562,7 +1767,7 @@ mod tests {
     fn baseline_targets_train() {
         for target in [Formation::MaxMean, Formation::MaxRem, Formation::MaxAqe] {
             let cfg = AlgoConfig {
-                target,
+                method: Method::selkd(target),
                 ..small(1, 4, 4)
             };
             let mut s = Selkd::new(&cfg, 3, 2, Device::Cpu, 1);
@@ -1576,7 +1781,14 @@ mod tests {
     #[test]
     fn without_rl_only_actor_zero_optimises_the_rl_objective() {
         let cfg = AlgoConfig {
-            without_rl: true,
+            method: selkd_with(
+                Formation::MaxMin,
+                Sharing::PerUpdate,
+                Distillation {
+                    kd_actors: None,
+                    without_rl: true,
+                },
+            ),
             kd_weight: 0.0,
             ..small(3, 2, 2)
         };
@@ -1636,10 +1848,10 @@ mod tests {
             wall_seconds: 0.0,
             selected_variant: 0,
         };
-        checkpoint::save(&dir, &a, Some((&mut rb, None)), &state).unwrap();
+        checkpoint::save(&dir, &mut a, Some(&mut rb), &state).unwrap();
         let mut b = Selkd::new(&cfg, 3, 2, Device::Cpu, 99);
         let mut rb2 = ReplayBuffer::new(1000, 3, 2, Device::Cpu);
-        checkpoint::load(&dir, &mut b, &mut rb2, None).unwrap();
+        checkpoint::load(&dir, &mut b, &mut rb2).unwrap();
         assert_eq!(rb2.len(), rb.len());
         // One actor, loaded for acting (`selkd render`): its own weights; the best by default.
         let one = checkpoint::load_actor(&dir, Some(1)).unwrap();
@@ -1671,8 +1883,16 @@ mod tests {
     }
 
     fn avtd(variants: Vec<Regulariser>, n: usize) -> AlgoConfig {
+        avtd_decayed(variants, n, 1e-4)
+    }
+
+    fn avtd_decayed(variants: Vec<Regulariser>, n: usize, weight_decay: f64) -> AlgoConfig {
         AlgoConfig {
-            variants,
+            method: Method::Avtd {
+                variants,
+                validation_every: 10,
+                weight_decay,
+            },
             ..small(1, n, 2)
         }
     }
@@ -1707,9 +1927,7 @@ mod tests {
             .map(|_| StandardNormal.sample(&mut peek))
             .map(|e: f32| e as f64)
             .collect();
-        let y = tch::no_grad(|| {
-            s.variant_target(&batch.reward, &batch.terminated, &batch.next_obs, &subsets)
-        });
+        let y = tch::no_grad(|| s.target(&batch, &subsets));
         assert_eq!(y.size(), [6, b_size as i64]);
         let alphas = [1.0, (-1.0f64).exp()];
         for b in 0..b_size {
@@ -1776,7 +1994,7 @@ mod tests {
                     .copy_(&Tensor::from_slice(&per_critic).view([6, 1, 1]));
             });
         };
-        let mut validation = ReplayBuffer::new(100, 3, 1, Device::Cpu);
+        let validation = &mut s.avtd.as_mut().unwrap().validation;
         for t in 0..50 {
             let x = t as f32 / 50.0;
             validation.push(&[x, -x, 0.5], &[0.1], 1.0, &[x, x, x], t % 9 == 0);
@@ -1784,18 +2002,19 @@ mod tests {
         set_biases(&s, [0.0, 0.9, 3.0]);
         s.draws = Some(Vec::new());
         assert!(
-            s.select_variant(&mut validation),
+            s.select_variant(),
             "variant 1 replaces variant 0"
         );
-        assert_eq!(s.selected, 1);
+        assert_eq!(s.selection().unwrap().0, 1);
         // Drawn from 4·B validation rows.
         let draws = s.draws.take().unwrap();
         let Some(Draw::CriticBatch(drawn, _)) = draws.first() else {
             panic!("the validation batch is recorded");
         };
         assert_eq!(drawn.obs.size(), [1, 4 * cfg.batch_size as i64, 3]);
-        for (got, want) in s.validation_td.iter().zip([0.5, 0.005, 2.0]) {
-            assert!((got - want).abs() < 1e-6, "{:?}", s.validation_td);
+        let (_, td) = s.selection().unwrap();
+        for (got, want) in td.iter().zip([0.5, 0.005, 2.0]) {
+            assert!((got - want).abs() < 1e-6, "{td:?}");
         }
         assert_eq!(
             s.actor_weights(0),
@@ -1805,20 +2024,24 @@ mod tests {
         // Only every SELECT_EVERY_ROUNDS rounds.
         set_biases(&s, [0.0, 0.9, 1.0]);
         s.actor_updates = 3;
-        assert!(!s.select_variant(&mut validation));
+        assert!(!s.select_variant());
         s.actor_updates = 2 * SELECT_EVERY_ROUNDS;
-        assert!(s.select_variant(&mut validation));
-        assert_eq!(s.selected, 2);
+        assert!(s.select_variant());
+        assert_eq!(s.selection().unwrap().0, 2);
         // Never from fewer validation rows than a mini-batch; from exactly one, yes.
-        let mut few = ReplayBuffer::new(100, 3, 1, Device::Cpu);
-        for _ in 1..cfg.batch_size {
-            few.push(&[0.0; 3], &[0.0], 0.0, &[0.0; 3], false);
-        }
+        let few = |s: &mut Selkd, rows: usize| {
+            let mut v = ReplayBuffer::new(100, 3, 1, Device::Cpu);
+            for _ in 0..rows {
+                v.push(&[0.0; 3], &[0.0], 0.0, &[0.0; 3], false);
+            }
+            s.avtd.as_mut().unwrap().validation = v;
+        };
         set_biases(&s, [1.0, 0.0, 0.0]);
-        assert!(!s.select_variant(&mut few));
-        few.push(&[0.0; 3], &[0.0], 0.0, &[0.0; 3], false);
-        assert!(s.select_variant(&mut few));
-        assert_eq!(s.selected, 1);
+        few(&mut s, cfg.batch_size - 1);
+        assert!(!s.select_variant());
+        few(&mut s, cfg.batch_size);
+        assert!(s.select_variant());
+        assert_eq!(s.selection().unwrap().0, 1);
     }
 
     /// The weight-decay variant's critics get ½ c ‖W‖² added to their loss: their gradient (Adam's
@@ -1828,14 +2051,8 @@ mod tests {
     fn avtd_weight_decay_adds_c_w_to_the_decayed_critics_gradient_only() {
         let c = 0.5;
         let variants = vec![Regulariser::None, Regulariser::WeightDecay];
-        let with = AlgoConfig {
-            weight_decay: c,
-            ..avtd(variants.clone(), 2)
-        };
-        let without = AlgoConfig {
-            weight_decay: 0.0,
-            ..avtd(variants, 2)
-        };
+        let with = avtd_decayed(variants.clone(), 2, c);
+        let without = avtd_decayed(variants, 2, 0.0);
         let (mut a, mut b) = (
             Selkd::new(&with, 3, 2, Device::Cpu, 7),
             Selkd::new(&without, 3, 2, Device::Cpu, 7),
@@ -1874,7 +2091,7 @@ mod tests {
         let mut s = Selkd::new(&avtd(vec![Regulariser::None; 3], per), 3, 1, Device::Cpu, 8);
         let mut count = vec![0usize; 3 * per];
         for _ in 0..draws {
-            let subsets = s.variant_subsets();
+            let subsets = s.draw_subsets(1);
             assert_eq!(subsets.len(), 3 * m);
             for (v, pair) in subsets.chunks(m).enumerate() {
                 assert_ne!(pair[0], pair[1]);

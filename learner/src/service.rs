@@ -59,9 +59,6 @@ pub struct Learner {
     row: TransitionRow,
     selkd: Selkd,
     replay: ReplayBuffer,
-    /// AVTD: the held-out validation transitions (every `algo.validation_every`-th stored), never
-    /// trained on; `None` for every other method.
-    validation: Option<ReplayBuffer>,
     ranking: Ranking,
     limiter: RateLimiter,
     /// Per worker: where its rollout stands, as received.
@@ -117,11 +114,6 @@ impl Learner {
         check_matmul(cfg.algo.critic_matmul, device)?;
         let mut replay =
             ReplayBuffer::new(cfg.algo.replay_capacity, spec.obs_dim, spec.act_dim, device);
-        // AVTD's validation rows: the same FIFO, its share of the capacity.
-        let mut validation = (!cfg.algo.variants.is_empty()).then(|| {
-            let capacity = (cfg.algo.replay_capacity as u64 / cfg.algo.validation_every).max(1);
-            ReplayBuffer::new(capacity as usize, spec.obs_dim, spec.act_dim, device)
-        });
         let warmup_total = cfg.warmup_per_actor() * k as u64;
         crate::config::create_run_dir(run_dir, cfg.run.dir_mode)
             .and_then(|()| std::fs::create_dir_all(run_dir.join("checkpoints")))
@@ -129,7 +121,7 @@ impl Learner {
         let metrics_path = run_dir.join("metrics.csv");
         let resumed = match resume {
             Some(dir) => {
-                let state = checkpoint::load(dir, &mut selkd, &mut replay, validation.as_mut())
+                let state = checkpoint::load(dir, &mut selkd, &mut replay)
                     .with_context(|| format!("resuming from {}", dir.display()))?;
                 tracing::info!(
                     env_steps = state.inserted,
@@ -243,7 +235,6 @@ impl Learner {
             run_dir: run_dir.to_path_buf(),
             selkd,
             replay,
-            validation,
             cfg,
         })
     }
@@ -587,11 +578,9 @@ impl Learner {
     fn store(&mut self, p: Pending) {
         if let Some(row) = &p.row {
             let (s, a, r, s2, terminated, _truncated) = self.row.split(row);
-            // AVTD holds out every n-th transition (by arrival order, so sync runs reproduce).
-            let held_out = (self.inserted + 1).is_multiple_of(self.cfg.algo.validation_every);
-            match &mut self.validation {
-                Some(validation) if held_out => validation.push(s, a, r, s2, terminated),
-                _ => self.replay.push(s, a, r, s2, terminated),
+            match self.selkd.held_out(self.inserted + 1) {
+                Some(validation) => validation.push(s, a, r, s2, terminated),
+                None => self.replay.push(s, a, r, s2, terminated),
             }
         }
         self.inserted += 1;
@@ -659,18 +648,6 @@ impl Learner {
     fn train_round(&mut self) -> Result<()> {
         let best = self.ranking.best();
         self.last_stats = self.selkd.train_round(&mut self.replay, best);
-        if let Some(validation) = &mut self.validation {
-            if self.selkd.select_variant(validation) {
-                let v = self.selkd.selected;
-                // Debug level: with close variants the selection can change every few rounds.
-                tracing::debug!(
-                    env_steps = self.inserted,
-                    "AVTD: variant {v} ({:?}) acts now; validation TD errors {:?}",
-                    self.cfg.algo.variants[v],
-                    self.selkd.validation_td
-                );
-            }
-        }
         let st = &self.last_stats;
         if !st.critic_loss.is_finite()
             || !st.q_mean.is_finite()
@@ -796,11 +773,7 @@ impl Learner {
         if self.tb.is_none() {
             return;
         }
-        let avtd = self
-            .validation
-            .is_some()
-            .then_some((self.selkd.selected, self.selkd.validation_td.as_slice()));
-        let values = metrics::live_scalars(&self.last_stats, rates, avtd);
+        let values = metrics::live_scalars(&self.last_stats, rates, self.selkd.selection());
         self.write_scalars(self.inserted, &values);
     }
 
@@ -978,14 +951,14 @@ impl Learner {
             epoch_ends: self.epoch_ends.iter().copied().collect(),
             ranking: self.ranking.clone(),
             wall_seconds: self.wall(),
-            selected_variant: self.selkd.selected,
+            selected_variant: self.selkd.selection().map_or(0, |(v, _)| v),
         };
         let replay = self
             .cfg
             .run
             .checkpoint_replay
-            .then_some((&mut self.replay, self.validation.as_mut()));
-        checkpoint::save(&dir, &self.selkd, replay, &state)?;
+            .then_some(&mut self.replay);
+        checkpoint::save(&dir, &mut self.selkd, replay, &state)?;
         checkpoint::write_atomically(
             &self.run_dir.join("checkpoints").join("latest"),
             &format!("{name}\n"),
@@ -1234,8 +1207,11 @@ mod tests {
         let mut cfg = Config::default();
         cfg.run.mode = Mode::Async;
         cfg.algo.actors = 1;
-        cfg.algo.variants = vec![crate::config::Regulariser::None; 2];
-        cfg.algo.validation_every = 4;
+        cfg.algo.method = crate::config::Method::Avtd {
+            variants: vec![crate::config::Regulariser::None; 2],
+            validation_every: 4,
+            weight_decay: 1e-4,
+        };
         cfg.algo.warmup_steps = 1_000_000; // no training: only the split is under test
         cfg.validate().unwrap();
         let mut l = Learner::new(cfg, &dir, None).unwrap();
@@ -1247,7 +1223,7 @@ mod tests {
             l.on_transition(header(0), &row);
         }
         l.replay.flush();
-        let validation = l.validation.as_mut().expect("AVTD has a validation buffer");
+        let validation = &mut l.selkd.avtd.as_mut().expect("AVTD").validation;
         validation.flush();
         let first = |b: &mut ReplayBuffer| -> Vec<f32> {
             let mut v = Vec::<f32>::try_from(b.export().select(1, 0)).unwrap();

@@ -65,7 +65,8 @@ fn inner(q_next: &Tensor, formation: Formation, opts: &InnerOptions) -> Tensor {
 /// - `reward`, `terminated`: `[G, B]` (terminated as 0/1)
 /// - `q_next`: target-critic values `Q̄_m(s', ã'_i)`, `[G, M, K, B]` (subset member, actor, row)
 /// - `logp_next`: `log π_i(ã'_i|s')`, `[G, K, B]`
-/// - `alpha`: temperatures `[K]`
+/// - `alpha`: temperatures, shaped to broadcast against `logp_next`: `[1, K, 1]`, or `[G, 1, 1]`
+///   where each group holds one actor (K = 1 per group: DPD's and AVTD's own critics)
 #[allow(clippy::too_many_arguments)] // the formula's inputs, each named as in SPEC.md
 pub fn critic_target(
     reward: &Tensor,
@@ -78,7 +79,7 @@ pub fn critic_target(
     opts: &InnerOptions,
 ) -> Tensor {
     let inner = inner(q_next, formation, opts);
-    let soft_value = inner - alpha.view([1, -1, 1]) * logp_next;
+    let soft_value = inner - alpha * logp_next;
     let outer = if formation.outer_is_max() {
         soft_value.amax(1, false)
     } else {
@@ -166,7 +167,7 @@ mod tests {
                 &t(&d, &[1, 4]),
                 &t(&qf, &[1, 3, 2, 4]),
                 &t(&lpf, &[1, 2, 4]),
-                &t(&alpha, &[2]),
+                &t(&alpha, &[1, 2, 1]),
                 0.99,
                 f,
                 &opts,
@@ -195,7 +196,7 @@ mod tests {
                 &t(&d, &[1, 3]),
                 &t(&qf, &[1, 2, 1, 3]),
                 &t(&lp, &[1, 1, 3]),
-                &t(&[alpha], &[1]),
+                &t(&[alpha], &[1, 1, 1]),
                 0.99,
                 f,
                 &InnerOptions {

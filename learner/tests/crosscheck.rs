@@ -18,7 +18,7 @@
 
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
-use selkd_learner::config::{ActorQ, AlgoConfig, Backbone, Sharing};
+use selkd_learner::config::{ActorQ, AlgoConfig, AlgoKeys, Backbone, Sharing};
 use selkd_learner::ensemble::Ensemble;
 use selkd_learner::matmul::CpuGemm;
 use selkd_learner::optim::Adam;
@@ -35,8 +35,8 @@ const ACT: usize = 2;
 
 /// Small networks, but every size > 1 where it can be, and rates large enough that two rounds
 /// move every weight and temperature well past float32 round-off.
-fn base() -> AlgoConfig {
-    AlgoConfig {
+fn base() -> AlgoKeys {
+    AlgoKeys {
         actors: 3,
         critics: 5,
         subset: 2,
@@ -45,15 +45,16 @@ fn base() -> AlgoConfig {
         hidden: vec![32, 32],
         lr: 1e-3,
         alpha_lr: 1e-2,
-        ..AlgoConfig::default()
+        ..AlgoKeys::default()
     }
 }
 
 /// (name, config, best actor in round 1 and round 2). The best changes between rounds so that the
 /// distillation reference and "the best has no KD term" are exercised on two different actors.
+/// Written as a config file's `[algo]` keys, read into the method as a config file is.
 fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
     let b = base();
-    let ensemble = |target| AlgoConfig {
+    let ensemble = |target| AlgoKeys {
         actors: 1,
         critics: 4,
         subset: 4,
@@ -64,7 +65,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ("selkd (max-min, per-update)", b.clone(), [1, 2]),
         (
             "per-critic sharing",
-            AlgoConfig {
+            AlgoKeys {
                 sharing: Sharing::PerCritic,
                 ..b.clone()
             },
@@ -72,7 +73,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ),
         (
             "min-min",
-            AlgoConfig {
+            AlgoKeys {
                 target: Formation::MinMin,
                 ..b.clone()
             },
@@ -80,7 +81,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ),
         (
             "max-max",
-            AlgoConfig {
+            AlgoKeys {
                 target: Formation::MaxMax,
                 ..b.clone()
             },
@@ -88,7 +89,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ),
         (
             "min-max",
-            AlgoConfig {
+            AlgoKeys {
                 target: Formation::MinMax,
                 ..b.clone()
             },
@@ -102,7 +103,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ("rem (max-rem)", ensemble(Formation::MaxRem), [0, 0]),
         (
             "aqe (max-aqe, drop 2 of 5)",
-            AlgoConfig {
+            AlgoKeys {
                 critics: 5,
                 subset: 5,
                 aqe_drop: 2,
@@ -112,7 +113,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ),
         (
             "aqe with K = 3 (drop 1 of 3)",
-            AlgoConfig {
+            AlgoKeys {
                 subset: 3,
                 target: Formation::MaxAqe,
                 aqe_drop: 1,
@@ -122,7 +123,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ),
         (
             "dpd (paired critics)",
-            AlgoConfig {
+            AlgoKeys {
                 actors: 2,
                 critics: 4,
                 paired_critics: true,
@@ -132,7 +133,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ),
         (
             "td3 backbone",
-            AlgoConfig {
+            AlgoKeys {
                 backbone: Backbone::Td3,
                 ..b.clone()
             },
@@ -140,7 +141,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ),
         (
             "td3 backbone, per-critic, min-min",
-            AlgoConfig {
+            AlgoKeys {
                 backbone: Backbone::Td3,
                 sharing: Sharing::PerCritic,
                 target: Formation::MinMin,
@@ -150,7 +151,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ),
         (
             "w/o rl",
-            AlgoConfig {
+            AlgoKeys {
                 without_rl: true,
                 ..b.clone()
             },
@@ -158,7 +159,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ),
         (
             "w/o kd (kd_actors = [0])",
-            AlgoConfig {
+            AlgoKeys {
                 kd_actors: Some(vec![0]),
                 ..b.clone()
             },
@@ -166,7 +167,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ),
         (
             "sac (K=1, N=M=2, actor min)",
-            AlgoConfig {
+            AlgoKeys {
                 actors: 1,
                 critics: 2,
                 subset: 2,
@@ -177,7 +178,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ),
         (
             "fixed α, λ_KD 0.5, actor min",
-            AlgoConfig {
+            AlgoKeys {
                 fixed_alpha: Some(0.2),
                 kd_weight: 0.5,
                 actor_q: ActorQ::Min,
@@ -187,7 +188,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ),
         (
             "actors updated G times per round (U = G, not Algorithm 1)",
-            AlgoConfig {
+            AlgoKeys {
                 actor_updates_per_round: b.utd,
                 ..b.clone()
             },
@@ -195,13 +196,16 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         ),
         (
             "target entropy −0.5",
-            AlgoConfig {
+            AlgoKeys {
                 target_entropy: Some(-0.5),
                 ..b.clone()
             },
             [0, 1],
         ),
     ]
+    .into_iter()
+    .map(|(name, keys, best)| (name, AlgoConfig::try_from(keys).expect(name), best))
+    .collect()
 }
 
 fn tensor(t: &Tensor) -> Value {

@@ -61,7 +61,8 @@ class SelkdPolicy(nn.Module):
     """An SELKD actor: ``obs → Linear → ReLU → … → Linear → [μ, log σ]``.
 
     ``forward(obs)`` is the deterministic action ``tanh(μ)`` (what evaluation plays), in
-    ``[-1, 1]``; Gymnasium's own version of the task takes ``action_scale × forward(obs)``.
+    ``[-1, 1]``; ``env_action(obs)`` is that action in the Gymnasium env's own units (the
+    Box's bounds for a ``gymnasium:`` run; ``action_scale × forward(obs)`` for our envs' twins).
     ``sample(obs)`` draws the stochastic action ``tanh(μ + σ·ε)``. ``metadata`` holds the
     bundle's ``policy.json``.
     """
@@ -99,6 +100,19 @@ class SelkdPolicy(nn.Module):
         """The deterministic action for one NumPy observation, as NumPy (for an env loop)."""
         with torch.no_grad():
             return self(torch.as_tensor(np.asarray(obs, dtype=np.float32))).numpy()
+
+    def env_action(self, obs) -> np.ndarray:
+        """``act(obs)`` in the Gymnasium env's own units, as the workers step it: mapped
+        affinely from [-1, 1] onto the action Box of a ``gymnasium:`` run, else scaled by
+        ``action_scale`` (our envs' Gymnasium twins take ±``action_scale``)."""
+        a = self.act(obs)
+        if "action_low" in self.metadata:
+            # In float64, as the workers map it before Gymnasium's step.
+            a64 = np.clip(a.astype(np.float64), -1.0, 1.0).reshape(-1)
+            low = np.asarray(self.metadata["action_low"], dtype=np.float64)
+            high = np.asarray(self.metadata["action_high"], dtype=np.float64)
+            return (low + (a64 + 1.0) * 0.5 * (high - low)).reshape(a.shape)
+        return self.action_scale * a
 
 
 def _bundle(path: Path) -> SelkdPolicy:
@@ -157,9 +171,17 @@ def _checkpoint(path: Path, actor: str | int) -> SelkdPolicy:
     act_dim = layers[-1][0].shape[2] // 2
     hidden = [w.shape[2] for w, _ in layers[:-1]]
     env = cfg["run"]["env"]
-    scale = Env(env, json.dumps(cfg.get("env_options", {}))).spec.gymnasium_action_scale
+    options = cfg.get("env_options", {})
+    if env.startswith(GYMNASIUM_PREFIX):
+        low, high = _gymnasium_action_bounds(env[len(GYMNASIUM_PREFIX):], options)
+        scale = _symmetric_scale(low, high)
+        bounds = {"action_low": low, "action_high": high}
+    else:
+        # This package's own envs; their Gymnasium twins take ±scale.
+        scale = Env(env, json.dumps(options)).spec.gymnasium_action_scale
+        bounds = {}
     meta = {"format": "selkd-policy", "format_version": FORMAT_VERSION, "env": env,
-            "env_options": cfg.get("env_options", {}), "gymnasium_action_scale": scale,
+            "env_options": options, "gymnasium_action_scale": scale, **bounds,
             "obs_dim": obs_dim, "act_dim": act_dim, "hidden": hidden, "activation": "relu",
             "log_std_min": -20.0, "log_std_max": 2.0, "squash": "tanh", "actor": index,
             "actors": k, "best_actor": best, "score": score, "scores": scores,
@@ -171,6 +193,46 @@ def _checkpoint(path: Path, actor: str | int) -> SelkdPolicy:
         sd[f"net.{2 * l}.bias"] = b[index].reshape(-1)
     policy.load_state_dict(sd)
     return policy.eval()
+
+
+GYMNASIUM_PREFIX = "gymnasium:"
+
+
+def _gymnasium_action_bounds(env_id: str, options: dict) -> tuple[list[float], list[float]]:
+    """The flattened action Box of a ``gymnasium:`` run's env, made as the workers make it:
+    ``options`` are ``gymnasium.make``'s keywords but ``import``, modules imported first."""
+    import importlib
+
+    try:
+        import gymnasium
+    except ImportError:
+        raise SelkdError(f"gymnasium:{env_id}: this Python has no gymnasium; pip install gymnasium") from None
+    kwargs = dict(options)
+    for module in kwargs.pop("import", []):
+        try:
+            importlib.import_module(module)
+        except ImportError as e:
+            raise SelkdError(f"gymnasium:{env_id}: importing {module!r} ({e}): install it") from None
+    try:
+        env = gymnasium.make(env_id, **kwargs)
+    except Exception as e:  # Gymnasium's own message names the near miss or the bad keyword.
+        raise SelkdError(f"gymnasium:{env_id}: {type(e).__name__}: {e}") from None
+    try:
+        space = env.action_space
+        if not isinstance(space, gymnasium.spaces.Box):
+            raise SelkdError(f"gymnasium:{env_id}: the action space is {space}, not a Box")
+        low = np.asarray(space.low, dtype=np.float64).ravel()
+        high = np.asarray(space.high, dtype=np.float64).ravel()
+    finally:
+        env.close()
+    return low.tolist(), high.tolist()
+
+
+def _symmetric_scale(low: list[float], high: list[float]) -> float:
+    """As the workers' spec: c when the Box is ±c in every dimension, else NaN (no one scale)."""
+    symmetric = all(abs(l + h) < 1e-9 for l, h in zip(low, high))
+    same = all(abs(h - high[0]) <= 1e-9 * max(abs(h), 1.0) for h in high)
+    return float(high[0]) if high and symmetric and same else float("nan")
 
 
 def _scores(ranking: dict) -> list[float | None]:

@@ -422,3 +422,39 @@ fn render_draws_gymnasium_hopper_headless_or_says_what_to_install() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `selkd.load_policy` on a `gymnasium:` run (the test env's Box [-2, 2] × [0, 1], which no one
+/// scale maps onto): the package reads the Box from Gymnasium itself, and the loaded policy,
+/// stepped by Python through `env_action` on `selkd eval`'s seeds, plays the evaluated episodes
+/// (python/tests/test_gym_policy.py).
+#[test]
+fn python_loads_a_gymnasium_run_and_replays_its_evaluation() {
+    let dir = temp_dir("gym-policy");
+    let run_dir = dir.join("run");
+    let out = train_test_env(&run_dir, "SelkdEcho-v0", &["eval.epoch_env_steps=500"]);
+    assert_success(&out, &run_dir);
+    let out = selkd_with_test_envs(&[
+        "eval",
+        run_dir.to_str().unwrap(),
+        "--episodes",
+        "3",
+        "--json",
+    ]);
+    assert!(
+        out.status.success(),
+        "eval: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let eval = dir.join("eval.json");
+    std::fs::write(&eval, &out.stdout).unwrap();
+    let test_envs = repo().join("gymnasium/tests/python");
+    pytest(
+        "test_gym_policy.py",
+        &[
+            ("SELKD_TEST_RUN", &run_dir),
+            ("SELKD_TEST_EVAL", &eval),
+            ("PYTHONPATH", &test_envs),
+        ],
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

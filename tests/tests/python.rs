@@ -12,38 +12,6 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .unwrap()
-        .to_path_buf()
-}
-
-/// Runs one pytest file of python/tests with `vars` in its environment; fails with its output.
-fn pytest(file: &str, vars: &[(&str, &Path)]) {
-    let mut c = Command::new(python());
-    c.args([
-        "-m",
-        "pytest",
-        "-q",
-        "-p",
-        "no:cacheprovider",
-        "-W",
-        "ignore::DeprecationWarning",
-    ])
-    .arg(repo().join("python/tests").join(file))
-    .current_dir(repo())
-    .env("OMP_NUM_THREADS", "1");
-    for (k, v) in vars {
-        c.env(k, v);
-    }
-    let out = c.output().expect("starting python");
-    let text =
-        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "pytest {file} failed:\n{text}");
-    eprintln!("{}", text.lines().last().unwrap_or(""));
-}
-
 #[test]
 fn every_env_passes_gymnasium_checks_and_bad_input_is_a_python_error() {
     pytest("test_envs.py", &[]);

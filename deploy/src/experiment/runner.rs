@@ -21,7 +21,6 @@ use tokio::sync::mpsc;
 
 struct Running {
     pid: i32,
-    started: Instant,
     /// Held while the run trains (see [`lock`]).
     _lock: selkd_protocol::lock::PidLock,
 }
@@ -219,14 +218,7 @@ async fn schedule(
                 }
             };
             let pid = spawn(&runs[i], resume.as_deref(), &tx, i)?;
-            running.insert(
-                i,
-                Running {
-                    pid,
-                    started: Instant::now(),
-                    _lock: lock,
-                },
-            );
+            running.insert(i, Running { pid, _lock: lock });
         }
         if running.is_empty() && (elsewhere.is_empty() || stop.is_some()) {
             break;
@@ -235,9 +227,9 @@ async fn schedule(
             _ = sigint.recv(), if stop.is_none() => stop = Some(libc::SIGINT),
             _ = sigterm.recv(), if stop.is_none() => stop = Some(libc::SIGTERM),
             Some((i, outcome)) = rx.recv() => {
-                let r = running.remove(&i).expect("a started run");
+                running.remove(&i).expect("a started run");
                 match outcome {
-                    Outcome::Finished => progress.finished(r.started.elapsed()),
+                    Outcome::Finished => progress.finished(),
                     Outcome::Stopped => stopped += 1,
                     Outcome::Failed(why) => {
                         let log = runs[i].dir.join("logs").join("selkd.log");
@@ -249,7 +241,8 @@ async fn schedule(
                 continue;
             }
             _ = tick.tick() => {
-                progress.show(runs, &running, todo.len() + elsewhere.len(), failed.len());
+                let left: Vec<usize> = todo.iter().chain(&elsewhere).copied().collect();
+                progress.show(runs, &running, &left, failed.len());
                 todo.extend(elsewhere.drain(..));
                 continue;
             }
@@ -315,11 +308,67 @@ struct Progress {
     total: usize,
     jobs: usize,
     done: usize,
-    /// Wall time of runs that finished in this invocation, for the ETA of those not started.
-    durations: Vec<f64>,
     tty: bool,
     started: Instant,
     last_line: Option<Instant>,
+}
+
+/// What the ETA knows of one run: its method (the first part of its id), its budget, and, from
+/// its latest progress line, how far it got in how much wall time (`wall_s` is kept across
+/// resumes, so a resumed run's rate is its whole history's).
+#[derive(Clone, Debug, PartialEq)]
+struct Seen<'a> {
+    method: &'a str,
+    total_env_steps: f64,
+    /// (env steps, wall seconds) so far; `None` for a run not started.
+    so_far: Option<(f64, f64)>,
+}
+
+/// Seconds of work left: each running run's rest at its own rate, and each run not started at
+/// the mean seconds per env step of its method's runs seen so far (finished or running, in any
+/// invocation), else of every run seen; spread over the `jobs` slots. `None` when no run has a
+/// rate yet. Runs differ in budget (rounds × K against env steps) and in cost per env step by
+/// method, so one mean run length would be wrong for both.
+fn eta_seconds(running: &[Seen], seen: &[Seen], left: &[Seen], jobs: usize) -> Option<f64> {
+    let rate = |s: &Seen| {
+        s.so_far
+            .filter(|&(n, w)| n > 0.0 && w > 0.0)
+            .map(|(n, w)| w / n)
+    };
+    let mean = |rates: Vec<f64>| {
+        (!rates.is_empty()).then(|| rates.iter().sum::<f64>() / rates.len() as f64)
+    };
+    let all = mean(running.iter().chain(seen).filter_map(rate).collect())?;
+    let of_method = |m: &str| {
+        mean(
+            running
+                .iter()
+                .chain(seen)
+                .filter(|s| s.method == m)
+                .filter_map(rate)
+                .collect(),
+        )
+        .unwrap_or(all)
+    };
+    let mut work = 0.0;
+    for r in running {
+        let n = r.so_far.map_or(0.0, |(n, _)| n);
+        work += (r.total_env_steps - n).max(0.0) * rate(r).unwrap_or_else(|| of_method(r.method));
+    }
+    for l in left {
+        work += l.total_env_steps * of_method(l.method);
+    }
+    Some(work / jobs.min(running.len() + left.len()).max(1) as f64)
+}
+
+/// The latest progress line of a run directory, if it has one.
+fn last_progress(dir: &Path) -> Option<(f64, f64)> {
+    let text = tail(&dir.join("logs").join("progress.jsonl"), 4096);
+    let p = text
+        .lines()
+        .rev()
+        .find_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())?;
+    Some((p["env_steps"].as_f64()?, p["wall_s"].as_f64()?))
 }
 
 impl Progress {
@@ -328,16 +377,14 @@ impl Progress {
             total,
             jobs,
             done: skipped,
-            durations: Vec::new(),
             tty: std::io::stderr().is_terminal(),
             started: Instant::now(),
             last_line: None,
         }
     }
 
-    fn finished(&mut self, took: Duration) {
+    fn finished(&mut self) {
         self.done += 1;
-        self.durations.push(took.as_secs_f64());
     }
 
     fn clear(&self) {
@@ -350,7 +397,7 @@ impl Progress {
         &mut self,
         runs: &[Run],
         running: &HashMap<usize, Running>,
-        left: usize,
+        left: &[usize],
         failed: usize,
     ) {
         if !self.tty
@@ -360,34 +407,33 @@ impl Progress {
         {
             return;
         }
-        // From each running run's latest progress: its remaining time, and its projected length.
-        let mut remaining = 0.0;
-        let mut lengths = self.durations.clone();
-        let mut known = true;
-        for &i in running.keys() {
-            let line = tail(&runs[i].dir.join("logs").join("progress.jsonl"), 4096);
-            let p = line
-                .lines()
-                .rev()
-                .find_map(|l| serde_json::from_str::<serde_json::Value>(l).ok());
-            let f = |p: &serde_json::Value, k: &str| p[k].as_f64().unwrap_or(0.0);
-            match p {
-                Some(p) if f(&p, "env_steps") > 0.0 && f(&p, "wall_s") > 0.0 => {
-                    let per_step = f(&p, "wall_s") / f(&p, "env_steps");
-                    remaining +=
-                        (f(&p, "total_env_steps") - f(&p, "env_steps")).max(0.0) * per_step;
-                    lengths.push(f(&p, "total_env_steps") * per_step);
-                }
-                _ => known = false,
-            }
-        }
-        let eta = if lengths.is_empty() || (!known && self.durations.is_empty()) {
-            "–".to_string()
-        } else {
-            let mean = lengths.iter().sum::<f64>() / lengths.len() as f64;
-            let work = remaining + left as f64 * mean;
-            duration(work / self.jobs.min(running.len() + left).max(1) as f64)
+        let seen = |i: usize, so_far: Option<(f64, f64)>| Seen {
+            method: runs[i].id.split('/').next().unwrap_or(""),
+            total_env_steps: runs[i].config.run.total_env_steps as f64,
+            so_far,
         };
+        let now: Vec<Seen> = running
+            .keys()
+            .map(|&i| seen(i, last_progress(&runs[i].dir)))
+            .collect();
+        // Every other run with a progress line: finished ones, and stopped ones left to resume.
+        let others: Vec<Seen> = (0..runs.len())
+            .filter(|i| !running.contains_key(i))
+            .filter_map(|i| last_progress(&runs[i].dir).map(|p| seen(i, Some(p))))
+            .collect();
+        let todo: Vec<Seen> = left
+            .iter()
+            .map(|&i| {
+                let mut s = seen(i, last_progress(&runs[i].dir));
+                // A stopped run left to resume has only its rest to do.
+                if let Some((n, _)) = s.so_far.take() {
+                    s.total_env_steps = (s.total_env_steps - n).max(0.0);
+                }
+                s
+            })
+            .collect();
+        let left = left.len();
+        let eta = eta_seconds(&now, &others, &todo, self.jobs).map_or("–".to_string(), duration);
         let line = format!(
             "[{}] runs: {}/{} done, {} running, {left} left, {failed} failed | ETA {eta}",
             duration(self.started.elapsed().as_secs_f64()),
@@ -401,5 +447,43 @@ impl Progress {
             eprintln!("{line}");
         }
         self.last_line = Some(Instant::now());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn seen(method: &str, total: f64, so_far: Option<(f64, f64)>) -> Seen<'_> {
+        Seen {
+            method,
+            total_env_steps: total,
+            so_far,
+        }
+    }
+
+    #[test]
+    fn the_eta_prices_each_run_by_its_budget_and_its_methods_rate() {
+        // Running: 250k of 500k env steps in 5 000 s (0.02 s a step), 5 000 s left. Seen: SAC
+        // finished 100k in 1 000 s (0.01). Left: SAC 100k at 0.01 = 1 000 s; REDQ, never
+        // seen, at the mean of the two rates (0.015) = 1 500 s; rounds 500k at 0.02 = 10 000 s.
+        let running = [seen("rounds", 500e3, Some((250e3, 5000.0)))];
+        let finished = [seen("sac", 100e3, Some((100e3, 1000.0)))];
+        let left = [
+            seen("sac", 100e3, None),
+            seen("redq", 100e3, None),
+            seen("rounds", 500e3, None),
+        ];
+        let work = 5000.0 + 1000.0 + 1500.0 + 10_000.0;
+        let eta = |jobs| eta_seconds(&running, &finished, &left, jobs).unwrap();
+        assert!((eta(1) - work).abs() < 1e-6, "{}", eta(1));
+        assert!((eta(2) - work / 2.0).abs() < 1e-6, "{}", eta(2));
+        // More slots than runs: the four runs' work over four.
+        assert!((eta(8) - work / 4.0).abs() < 1e-6, "{}", eta(8));
+        // Nothing has a rate yet: no ETA rather than a guess.
+        assert_eq!(
+            eta_seconds(&[seen("rounds", 500e3, None)], &[], &left, 1),
+            None
+        );
     }
 }

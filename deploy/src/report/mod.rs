@@ -7,6 +7,8 @@
 //!   `selkd plot`).
 //! - [`fresh`]: the scores, the ranked actor re-evaluated on fresh episodes (cached per run).
 //! - [`table`]: Table 2 as Markdown and CSV.
+//! - [`stats`]: the exact Mann-Whitney test; [`pairwise`]: its tables over Table 2's methods.
+//! - [`published`]: other papers' numbers at the same budget, set beside Table 2.
 //! - [`figure`]: line and bar charts as SVG, rasterised to PNG.
 //!
 //! Only finished runs (the final checkpoint reached `run.total_env_steps`) are averaged; a run
@@ -15,7 +17,10 @@
 pub mod align;
 pub mod figure;
 pub(crate) mod fresh;
+mod pairwise;
+pub mod published;
 pub mod runs;
+pub mod stats;
 mod table;
 
 use align::{second_half_mean, Aligned};
@@ -53,6 +58,8 @@ struct Group<'a> {
 /// One task's groups, and whether it is scored by success rate.
 struct Task<'a> {
     name: String,
+    /// Its runs' env (one per task: [`check_same_task`]).
+    env: String,
     rate: bool,
     groups: Vec<Group<'a>>,
 }
@@ -530,6 +537,7 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
         }
         tasks.push(Task {
             name: name.clone(),
+            env: every.first().map_or_else(String::new, |r| r.env.clone()),
             rate: every.iter().any(|r| r.metrics.has_success()),
             groups,
         });
@@ -606,21 +614,42 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
     let _ = writeln!(md, "- **Seeds**: {}.", seeds.join("; "));
     let _ = writeln!(md, "- **Score** (Table 2): the actor that the final checkpoint's ranking picks (the actor SELKD executes), re-evaluated with deterministic actions on **E = {} fresh episodes** (`fresh_seed(0..{})`: the same episodes for every method and seed, none played during training, so the pick's luck does not inflate the score), on the run's env and `[env_options]`. The score is the mean undiscounted return, or the success rate for tasks that report success. Each run's episodes are in `RUN/fresh_eval.json`.", args.episodes, args.episodes);
     let _ = writeln!(md, "- **mean ± std** is over seeds; std is the **sample** standard deviation (divisor n − 1; n/a for one seed). Only finished runs (final checkpoint at the budget) are averaged; a † marks a method with runs that stopped short (footnotes give their env steps).");
-    let _ = writeln!(md, "- **Curves** (Figures 3, 4, 6–9), drawn against **{}** unless a figure names its own axis: each seed's in-run evaluation of its ranked actor (the `best` column of metrics.csv picks the actor per epoch) interpolated linearly onto a common grid of that axis (every multiple of the shortest epoch length within the range all seeds cover), then mean ± ½ std over seeds; dashed: the mean over a method's actors. Figure 5: the mean, over grid points in the second half of the budget (on critic updates and wall-clock: of the range all seeds cover), of the std across seeds (the paper's stability measure; lower is more stable).\n", args.x.label());
+    let _ = writeln!(md, "- **Curves** (Figures 3, 4, 6–9), drawn against **{}** unless a figure names its own axis: each seed's in-run evaluation of its ranked actor (the `best` column of metrics.csv picks the actor per epoch) interpolated linearly onto a common grid of that axis (every multiple of the shortest epoch length within the range all seeds cover), then mean ± ½ std over seeds; dashed: the mean over a method's actors. Figure 5: the mean, over grid points in the second half of the budget (on critic updates and wall-clock: of the range all seeds cover), of the std across seeds (the paper's stability measure; lower is more stable).", args.x.label());
+    let _ = writeln!(md, "- **Pairwise tests**: under each task's Table 2, an exact two-sided Mann-Whitney test of the scores of every pair of methods with finished seeds, with the least p its seed counts allow.");
+    let _ = writeln!(md, "- **Published numbers**: for Gymnasium MuJoCo tasks, other papers' returns at the same env-step budget, where one was published, cited under the table; not the same experiment as ours (Gym v4, their network sizes and update ratios).\n");
     let _ = writeln!(md, "## Table 2: final scores, at each method's budget (the budget column; the heading says when all are equal)\n");
+    let (published_rows, published_notes) = published::parse(published::CSV);
     let mut csv_tasks = Vec::new();
     for t in &tasks {
         let r = rows(t, &fresh, None);
         md.push_str(&table::markdown(&t.name, &r, t.rate, args.episodes));
         md.push('\n');
+        // Published returns stand beside returns only: no success rates were published.
+        if !t.rate {
+            let ours: Vec<(String, u64)> = r
+                .iter()
+                .filter(|r| r.budget.env_steps > 0)
+                .map(|r| (r.method.clone(), r.budget.env_steps))
+                .collect();
+            md.push_str(&published::markdown(
+                &t.env,
+                &ours,
+                &published_rows,
+                &published_notes,
+            ));
+        }
+        md.push_str(&pairwise::markdown(&r, t.rate));
         csv_tasks.push((t.name.clone(), t.rate, r));
     }
     let csv_path = dir.join("table2.csv");
     std::fs::write(&csv_path, table::csv(&csv_tasks))
         .with_context(|| format!("writing {}", csv_path.display()))?;
+    let pairs_path = dir.join("pairwise.csv");
+    std::fs::write(&pairs_path, pairwise::csv(&csv_tasks))
+        .with_context(|| format!("writing {}", pairs_path.display()))?;
     let _ = writeln!(
         md,
-        "The same numbers at full precision: [table2.csv](table2.csv).\n"
+        "The same numbers at full precision: [table2.csv](table2.csv); the pairwise tests: [pairwise.csv](pairwise.csv).\n"
     );
     let _ = writeln!(md, "## Figures 3–5: learning curves and stability\n");
     for t in &tasks {

@@ -32,19 +32,19 @@ pub const KEY_DOCS: &[(&str, &str)] = &[
     ("algo.polyak", "ρ in Q̄ ← ρ Q̄ + (1 − ρ) Q, after every critic update"),
     ("algo.replay_capacity", "transitions the shared FIFO replay buffer holds"),
     ("algo.warmup_steps", "uniform-random transitions (all actors together) before the first update"),
-    ("algo.target", "target formation, outer over actors and inner over the subset: max-min (SELKD), min-min, min-max, max-max, max-mean, max-rem, max-aqe"),
-    ("algo.sharing", "per-update: one batch and subset for all N critics (REDQ); per-critic: one each (Algorithm 1, N× the cost)"),
+    ("algo.target", "target formation, outer over actors and inner over the subset: max-min (SELKD), min-min, min-max, max-max, max-mean, max-rem, max-aqe (SELKD and DNS; DPD and AVTD have their own)"),
+    ("algo.sharing", "per-update: one batch and subset for all N critics (REDQ); per-critic: one each (Algorithm 1, N× the cost; SELKD only)"),
     ("algo.kd_weight", "λ_KD, the weight of the distillation term toward the best actor"),
-    ("algo.paired_critics", "the DPD baseline: actor i owns N/K critics and distils toward actor i+1"),
-    ("algo.without_rl", "ablation w/o RL: only actor 0 optimises the RL objective, the others only distil"),
-    ("algo.kd_actors", "which actors (0-based) have the distillation term; unset: all (w/o KD sets [0])"),
+    ("algo.paired_critics", "the method DPD: actor i owns N/K critics and distils toward actor i+1"),
+    ("algo.without_rl", "ablation w/o RL (SELKD, DNS, DPD): only actor 0 optimises the RL objective, the others only distil"),
+    ("algo.kd_actors", "which actors (0-based) have the distillation term; unset: all (w/o KD sets [0]; SELKD and DNS)"),
     ("algo.actor_q", "the actor objective's reduction over the critics: mean (SELKD, REDQ) or min (SAC)"),
-    ("algo.aqe_drop", "max-aqe: how many of the highest subset values AQE drops"),
+    ("algo.aqe_drop", "max-aqe (SELKD, DNS): how many of the highest subset values AQE drops"),
     ("algo.fixed_alpha", "a fixed temperature α; unset: tuned automatically per actor"),
     ("algo.alpha_lr", "Adam learning rate of the temperatures"),
     ("algo.target_entropy", "target entropy of the automatic temperature; unset: −|A|"),
-    ("algo.trained_critics", "DNS: critics trained per update (k), drawn by a k-DPP over their similarity on the batch; absent: all N"),
-    ("algo.variants", "AVTD: the regularisation variants trained side by side (none, layer-norm, weight-decay), each with its own actor and N critics; the one with the lowest validation TD error acts; empty: no AVTD"),
+    ("algo.trained_critics", "the method DNS: critics trained per update (k), drawn by a k-DPP over their similarity on the batch; absent: all N"),
+    ("algo.variants", "the method AVTD: the regularisation variants trained side by side (none, layer-norm, weight-decay), each with its own actor and N critics; the one with the lowest validation TD error acts; empty: no AVTD"),
     ("algo.validation_every", "AVTD: every n-th transition is held out for validation and never trained on"),
     ("algo.weight_decay", "AVTD's weight-decay variant: c in ½ c ‖W‖² on each critic's weights"),
     ("algo.critic_matmul", "element type of the critics' matmuls: fp32, or bf16 (fast only on CPUs/GPUs with native bf16)"),
@@ -70,10 +70,17 @@ mod tests {
     /// `section.key`; `env_options` counts as one key.
     fn config_keys() -> Vec<String> {
         let mut c = Config::default();
-        c.algo.kd_actors = Some(vec![0]);
+        c.algo.method = crate::config::Method::Dns {
+            target: crate::targets::Formation::MaxMin,
+            aqe_drop: 1,
+            trained_critics: 3,
+            distillation: crate::config::Distillation {
+                kd_actors: Some(vec![0]),
+                without_rl: false,
+            },
+        };
         c.algo.fixed_alpha = Some(0.1);
         c.algo.target_entropy = Some(-1.0);
-        c.algo.trained_critics = Some(3);
         c.run.total_rounds = 1000;
         let table: toml::Table = toml::from_str(&c.to_toml()).unwrap();
         let mut keys = vec![];

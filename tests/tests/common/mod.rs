@@ -53,6 +53,39 @@ pub fn cache_dir() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from(std::env::var("HOME").unwrap()).join(".cache/selkd"))
 }
 
+/// The workspace's root (python/, configs/, gymnasium/tests/python).
+pub fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
+}
+
+/// Runs one pytest file of python/tests with `vars` in its environment; fails with its output.
+pub fn pytest(file: &str, vars: &[(&str, &Path)]) {
+    let mut c = Command::new(python());
+    c.args([
+        "-m",
+        "pytest",
+        "-q",
+        "-p",
+        "no:cacheprovider",
+        "-W",
+        "ignore::DeprecationWarning",
+    ])
+    .arg(repo().join("python/tests").join(file))
+    .current_dir(repo())
+    .env("OMP_NUM_THREADS", "1");
+    for (k, v) in vars {
+        c.env(k, v);
+    }
+    let out = c.output().expect("starting python");
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "pytest {file} failed:\n{text}");
+    eprintln!("{}", text.lines().last().unwrap_or(""));
+}
+
 pub fn temp_dir(tag: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("selkd-test-{tag}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);

@@ -68,6 +68,7 @@ pub fn check_report(
         md.contains(&format!("E = {episodes} fresh episodes")) && md.contains("sample"),
         "{md}"
     );
+    let mut all_scores = Vec::new();
     for &m in methods {
         let runs: Vec<_> = seeds
             .iter()
@@ -90,6 +91,7 @@ pub fn check_report(
                 mean(&r)
             })
             .collect();
+        all_scores.push(scores.clone());
         let (sm, ss) = (mean(&scores), sample_std(&scores));
         let row = table.iter().find(|r| r[0] == task && r[1] == m).unwrap();
         assert_eq!(row[3], seeds.len().to_string());
@@ -112,5 +114,76 @@ pub fn check_report(
             close(pm, mean(&ys)) && close(ps, sample_std(&ys)),
             "{m}: curve {pm} ± {ps} vs {ys:?}"
         );
+    }
+    check_pairwise(dir, task, methods, &all_scores, &md);
+}
+
+/// U of `a` over `b`: pairs where a is higher, ties ½.
+fn u_of(a: &[f64], b: &[f64]) -> f64 {
+    let mut u = 0.0;
+    for x in a {
+        for y in b {
+            u += if x > y {
+                1.0
+            } else if x == y {
+                0.5
+            } else {
+                0.0
+            };
+        }
+    }
+    u
+}
+
+/// The exact two-sided Mann-Whitney p by listing every split of the pooled values.
+fn listed_p(a: &[f64], b: &[f64]) -> f64 {
+    let pooled: Vec<f64> = a.iter().chain(b).copied().collect();
+    let centre = (a.len() * b.len()) as f64 / 2.0;
+    let observed = (u_of(a, b) - centre).abs();
+    let (mut far, mut all) = (0.0, 0.0);
+    for mask in 0u32..(1 << pooled.len()) {
+        if mask.count_ones() as usize != a.len() {
+            continue;
+        }
+        let x: Vec<f64> = (0..pooled.len())
+            .filter(|i| mask >> i & 1 == 1)
+            .map(|i| pooled[i])
+            .collect();
+        let y: Vec<f64> = (0..pooled.len())
+            .filter(|i| mask >> i & 1 == 0)
+            .map(|i| pooled[i])
+            .collect();
+        all += 1.0;
+        if (u_of(&x, &y) - centre).abs() >= observed - 1e-9 {
+            far += 1.0;
+        }
+    }
+    far / all
+}
+
+/// `pairwise.csv` and the report's pairwise table against U and p recomputed here.
+fn check_pairwise(dir: &Path, task: &str, methods: &[&str], scores: &[Vec<f64>], md: &str) {
+    let rows = csv_rows(&dir.join("pairwise.csv"));
+    for i in 0..methods.len() {
+        for j in i + 1..methods.len() {
+            let (a, b) = (&scores[i], &scores[j]);
+            let row = rows
+                .iter()
+                .find(|r| r[0] == task && r[2] == methods[i] && r[3] == methods[j])
+                .unwrap_or_else(|| panic!("no pair {} {} in pairwise.csv", methods[i], methods[j]));
+            let (u, p) = (u_of(a, b), listed_p(a, b));
+            assert_eq!(row[6].parse::<f64>().unwrap(), u, "{row:?}");
+            assert_eq!(row[7], (a.len() * b.len()).to_string(), "{row:?}");
+            assert!(close(row[8].parse().unwrap(), p), "{row:?}: p {p}");
+            let line = format!(
+                "| {} | {} | {} + {} | {u} of {} |",
+                methods[i],
+                methods[j],
+                a.len(),
+                b.len(),
+                a.len() * b.len()
+            );
+            assert!(md.contains(&line), "{line} not in\n{md}");
+        }
     }
 }

@@ -1,0 +1,189 @@
+//! The worker's env side: its seeded episodes, the replay that continues one mid-way, and one
+//! step of the policy. Nothing here knows of iceoryx2: a step hands its transition to a closure.
+
+use crate::CannotJoin;
+use anyhow::Result;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use selkd_envs::{Env, EnvSpec};
+use selkd_policy::Actor;
+use selkd_protocol::{Control, CursorHeader, TransitionRow};
+
+/// One 64-bit seed from several parts (SplitMix64's finaliser over each in turn): nearby inputs
+/// give unrelated seeds.
+pub fn mix(parts: &[u64]) -> u64 {
+    let mut h = 0x5e1d_0000_0000_0000u64;
+    for &p in parts {
+        h = (h ^ p).wrapping_add(0x9e37_79b9_7f4a_7c15);
+        h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        h ^= h >> 31;
+    }
+    h
+}
+
+/// The reset seed of this worker's `episode`-th episode. Seeds follow from where a step sits in
+/// the rollout, never from when or in which process it runs: a worker that continues from its
+/// cursor (after a restart, or in a resumed run) takes exactly the steps its predecessor would have.
+fn episode_seed(seed: u64, worker: usize, episode: u64) -> u64 {
+    mix(&[seed, worker as u64, episode, 2])
+}
+
+/// The random numbers of one step's action (warm-up draw or policy sample).
+fn step_rng(seed: u64, worker: usize, episode: u64, step: u64) -> Pcg64 {
+    Pcg64::seed_from_u64(mix(&[seed, worker as u64, episode, step, 1]))
+}
+
+/// An env that failed (a Python exception in a Gymnasium env) fails the worker with its
+/// message; a restart would only fail again the same way, so it counts as "cannot join".
+pub fn env_failed(env: &dyn Env) -> Result<()> {
+    match env.failure() {
+        Some(why) => Err(selkd_envs::EnvError::Failed(why).into()),
+        None => Ok(()),
+    }
+}
+
+/// Where one transition sits in the rollout, as its header tells the learner.
+pub struct Taken {
+    pub episode: u64,
+    pub step: u64,
+    /// A uniform draw of the warm-up, not the policy's.
+    pub warmup: bool,
+    /// The episode's return when this transition ends it, else NaN.
+    pub episode_return: f64,
+}
+
+/// Actor `worker`'s rollout: its env mid-episode and its place in the run.
+pub struct Rollout {
+    env: Box<dyn Env>,
+    spec: EnvSpec,
+    worker: usize,
+    seed: u64,
+    /// Transitions taken so far; the next one is number `sent`.
+    pub sent: u64,
+    episode: u64,
+    /// The step within the episode.
+    t: u64,
+    obs: Vec<f32>,
+    episode_return: f64,
+    row: TransitionRow,
+    /// The row being written, reused from step to step.
+    buf: Vec<f32>,
+}
+
+impl Rollout {
+    /// Continues the rollout where the learner's record of it ends (`cursor`): the episode's
+    /// recorded actions replayed on its seed leave the env exactly where the last transition the
+    /// learner has left it (the env is deterministic given seed and actions).
+    pub fn resume(
+        mut env: Box<dyn Env>,
+        worker: usize,
+        seed: u64,
+        cursor: &CursorHeader,
+        recorded_actions: &[f32],
+    ) -> Result<Self> {
+        let spec = env.spec().clone();
+        let (episode, t) = (cursor.episode, cursor.step);
+        let mut obs = env.reset(Some(episode_seed(seed, worker, episode)));
+        let mut episode_return = 0.0f64;
+        if recorded_actions.len() as u64 != t * spec.act_dim as u64 {
+            return Err(CannotJoin(format!(
+                "the learner's cursor for actor {worker} holds {} action values for {t} steps of {}",
+                recorded_actions.len(),
+                spec.act_dim
+            ))
+            .into());
+        }
+        env_failed(&*env)?;
+        for (i, action) in recorded_actions.chunks(spec.act_dim.max(1)).enumerate() {
+            let step = env.step(action);
+            env_failed(&*env)?;
+            if step.terminated || step.truncated {
+                return Err(CannotJoin(format!(
+                    "replaying episode {episode}'s {t} recorded steps ended it at step {i}: the env does not repeat its episodes (is this actor-worker built from the same source as the learner?)"
+                ))
+                .into());
+            }
+            episode_return += step.reward;
+            obs = step.obs;
+        }
+        let row = TransitionRow {
+            obs_dim: spec.obs_dim,
+            act_dim: spec.act_dim,
+        };
+        Ok(Self {
+            env,
+            spec,
+            buf: Vec::with_capacity(row.len()),
+            row,
+            worker,
+            seed,
+            sent: cursor.sent,
+            episode,
+            t,
+            obs,
+            episode_return,
+        })
+    }
+
+    /// One step: the warm-up's uniform draw or the policy's action (`control` says which, and
+    /// with what noise), its transition written as one row and handed to `publish`; then the
+    /// next state, or a new episode when this one ended.
+    pub fn step(
+        &mut self,
+        policy: &Actor,
+        control: &Control,
+        publish: impl FnOnce(&Taken, &[f32]) -> Result<()>,
+    ) -> Result<()> {
+        let warmup = self.sent < control.warmup_steps;
+        let mut action_rng = step_rng(self.seed, self.worker, self.episode, self.t);
+        let action: Vec<f32> = if warmup {
+            (0..self.spec.act_dim)
+                .map(|_| action_rng.gen_range(-1.0f32..=1.0))
+                .collect()
+        } else if control.exploration_noise > 0.0 {
+            policy.noisy_mean_action(&self.obs, control.exploration_noise, &mut action_rng)
+        } else {
+            policy.sample_action(&self.obs, &mut action_rng)
+        };
+        let step = self.env.step(&action);
+        env_failed(&*self.env)?;
+        self.episode_return += step.reward;
+        let done = step.terminated || step.truncated;
+        self.row.write(
+            &mut self.buf,
+            &self.obs,
+            &action,
+            step.reward as f32,
+            &step.obs,
+            step.terminated,
+            step.truncated,
+        );
+        let taken = Taken {
+            episode: self.episode,
+            step: self.t,
+            warmup,
+            episode_return: if done { self.episode_return } else { f64::NAN },
+        };
+        publish(&taken, &self.buf)?;
+        self.sent += 1;
+        self.t += 1;
+        if done {
+            self.episode += 1;
+            self.obs = self
+                .env
+                .reset(Some(episode_seed(self.seed, self.worker, self.episode)));
+            env_failed(&*self.env)?;
+            self.t = 0;
+            self.episode_return = 0.0;
+        } else {
+            self.obs = step.obs;
+        }
+        Ok(())
+    }
+
+    /// Where the rollout is, for the log: (sent, episode, step).
+    pub fn place(&self) -> (u64, u64, u64) {
+        (self.sent, self.episode, self.t)
+    }
+}
