@@ -189,7 +189,7 @@ pub enum AntObs {
 pub struct Ant {
     spec: EnvSpec,
     obs_kind: AntObs,
-    robot: Robot,
+    pub(crate) robot: Robot,
     /// The colliders of each MuJoCo body that reports contact forces, in MuJoCo's order.
     contact_bodies: Vec<Vec<ColliderHandle>>,
     t: usize,
@@ -746,6 +746,46 @@ mod tests {
                 lens[15],
                 lens.iter().sum::<usize>() as f32 / 30.0,
             );
+        }
+    }
+
+    /// Issue 32 for the ant (a measurement run by hand): the open-loop trot (10 settling steps,
+    /// then 200) over seeds 0–4 at [`SIM`] and 10× finer, with rapier's semi-implicit
+    /// multibody step (the ant's) and the explicit one the halfcheetah uses: `cargo test
+    /// --release -p selkd-envs ant::tests::fidelity -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn fidelity() {
+        for explicit in [false, true] {
+            for substeps in [SIM.substeps, 10 * SIM.substeps] {
+                let sim = SimParams { substeps, ..SIM };
+                let mut env = Ant::with_sim(AntObs::State, sim);
+                env.robot.set_tuning(crate::physics::PhysicsTuning {
+                    explicit_coriolis: Some(explicit),
+                    ..Default::default()
+                });
+                let mut d = vec![];
+                let mut fell = 0;
+                for seed in 0..5 {
+                    env.reset(Some(seed));
+                    for _ in 0..10 {
+                        env.step(&[0.0; 8]);
+                    }
+                    let x0 = env.qpos()[0];
+                    for t in 0..200 {
+                        if env.step(&trot(t, TROT)).terminated {
+                            fell += 1;
+                            break;
+                        }
+                    }
+                    d.push(env.qpos()[0] - x0);
+                }
+                let mean = d.iter().sum::<f32>() / d.len() as f32;
+                println!(
+                    "ant {substeps}x{} explicit {explicit}: trot {mean:.2} m {d:.2?}, {fell} fell",
+                    SIM.solver_iterations
+                );
+            }
         }
     }
 }

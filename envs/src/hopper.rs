@@ -107,7 +107,7 @@ pub fn links() -> Vec<LinkDesc> {
 
 pub struct Hopper {
     spec: EnvSpec,
-    robot: Robot,
+    pub(crate) robot: Robot,
     t: usize,
     rng: Pcg64,
 }
@@ -348,18 +348,7 @@ mod tests {
         assert!((0..125).any(|_| env.step(&[0.0; 3]).terminated));
     }
 
-    /// A linear feedback gait `a = W·obs + b`, found by hill-climbing on this env (seeds
-    /// 100–102; rows: thigh, leg, foot).
-    #[rustfmt::skip]
-    const GAIT: [f32; 36] = [-0.22923274, -0.5852054, -0.04406944, 0.98940253, 0.5378869, -0.14691302, 0.12462048, -0.24799633, -0.16483688, -1.0977902, 0.43983337, -0.0493351, 0.41248265, -0.29873717, 0.057094812, 0.8904846, -0.066688485, -0.09491283, -0.27379906, 0.037313536, 0.088913575, 0.35492292, 0.0003432706, -0.40167373, 0.0898592, 0.15675694, -0.415386, -0.40788946, -0.17088665, -0.49453723, -0.08359046, -0.65853477, -0.101052195, 0.014623437, 0.63814026, 0.12637138];
-
-    fn gait(obs: &[f32]) -> [f32; 3] {
-        let mut a = [0.0; 3];
-        for (i, ai) in a.iter_mut().enumerate() {
-            *ai = GAIT[33 + i] + (0..11).map(|j| GAIT[i * 11 + j] * obs[j]).sum::<f32>();
-        }
-        a
-    }
+    use crate::gaits::{hopper as gait, HOPPER as GAIT};
 
     #[test]
     fn scripted_gait_beats_standing_still() {
@@ -421,28 +410,6 @@ mod tests {
         }
     }
 
-    /// Issue 32's convergence table for the hopper's scripted gait: `cargo test --release -p
-    /// selkd-envs hopper::tests::fidelity -- --ignored --nocapture`.
-    #[test]
-    #[ignore]
-    fn fidelity() {
-        let settings: Vec<SimParams> = [(1, 8), (1, 4), (2, 4)]
-            .map(|(substeps, solver_iterations)| SimParams {
-                control_dt: CONTROL_DT,
-                substeps,
-                solver_iterations,
-            })
-            .to_vec();
-        crate::testing::fidelity_table(
-            "hopper",
-            Hopper::with_sim,
-            &settings,
-            0..24,
-            |e| e.qpos()[0],
-            |o, _| gait(o).to_vec(),
-        );
-    }
-
     /// Issue 32's reward band: a uniform random policy's and a standing (zero-action) policy's
     /// mean returns over seeds 0–9. The bands are our own measurement at [`SIM`] (random 16.1, standing 163.0),
     /// widened by about half, not a MuJoCo measurement: a physics or reward change that moves
@@ -478,7 +445,7 @@ mod tests {
                             w[33 + i] + (0..11).map(|j| w[i * 11 + j] * o[j]).sum::<f32>()
                         })
                     };
-                    crate::testing::rollout(&mut env, s, |e| e.qpos()[0], |o, _| p(o).to_vec()).ret
+                    crate::testing::rollout(&mut env, s, |o, _| p(o).to_vec()).ret
                 })
                 .sum::<f64>()
                 / 3.0
@@ -497,24 +464,5 @@ mod tests {
             }
         }
         println!("{best_score:.1} {best:?}");
-    }
-
-    /// Issue 32, converged: the scripted gait at [`SIM`] against the same gait integrated 10×
-    /// finer (10 × 0.8 ms steps, same iterations), 8 seeds: mean distance, return and episode
-    /// length within 15% (measured over 24 seeds: 3%, 0%, 0%; the old 1×4 setting and its old
-    /// gait: 26%, 294%, 351%, see docs/results/fidelity.md).
-    #[test]
-    fn gait_converges_under_10x_finer_integration() {
-        let gaps = crate::testing::gaps_to_10x_finer(
-            Hopper::with_sim,
-            SIM,
-            0..8,
-            |e| e.qpos()[0],
-            |o, _| gait(o).to_vec(),
-        );
-        assert!(
-            gaps.iter().all(|g| *g < 0.15),
-            "gaps (distance, return, length) {gaps:?}"
-        );
     }
 }

@@ -38,7 +38,10 @@
 //! ```
 
 pub mod ant;
+#[cfg(test)]
+mod fidelity;
 pub mod fpc_assembly;
+pub mod gaits;
 pub mod halfcheetah;
 pub mod hopper;
 pub mod humanoid;

@@ -392,6 +392,15 @@ impl Articulation {
         art
     }
 
+    /// Integrates the robot's Coriolis and gyroscopic terms explicitly in each (sub)step (the
+    /// vendored rapier's opt-in patch, `vendor/README.md`) instead of rapier's semi-implicit
+    /// solve, which does not conserve the articulation's momentum at large steps (issue 32: the
+    /// cheetah's 10 ms steps let an open-loop gait "swim" forward 500 m). MuJoCo's Euler
+    /// integrator treats them explicitly too.
+    pub fn set_explicit_coriolis(&self, w: &mut PhysicsWorld, explicit: bool) {
+        self.multibody_mut(w).set_explicit_coriolis(explicit);
+    }
+
     /// Number of generalized coordinates (`qpos`).
     pub fn nq(&self) -> usize {
         self.nq
@@ -751,6 +760,48 @@ pub struct Robot {
     pub links: Articulation,
     sim: SimParams,
     build: fn(&SimParams) -> (PhysicsWorld, Articulation),
+    tuning: PhysicsTuning,
+}
+
+/// Overrides of a robot's physics settings on top of what its `build` chose: what the
+/// fidelity measurement ([`crate`]'s `fidelity` tests) sweeps; unset fields keep the robot's own.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PhysicsTuning {
+    /// Contact softness (natural frequency Hz, damping ratio), for contacts with fixed bodies
+    /// (the floor) and moving ones alike.
+    pub softness: Option<(f32, f32)>,
+    /// Rapier's `normalized_prediction_distance`, m.
+    pub prediction: Option<f32>,
+    /// The articulation's Coriolis terms explicit (see [`Articulation::set_explicit_coriolis`]).
+    pub explicit_coriolis: Option<bool>,
+    /// Joint-limit softness (natural frequency Hz, damping ratio) of every hinge.
+    pub limit_softness: Option<(f32, f32)>,
+}
+
+impl PhysicsTuning {
+    fn apply(&self, w: &mut PhysicsWorld, art: &Articulation) {
+        let ip = &mut w.integration_parameters;
+        if let Some((hz, zeta)) = self.softness {
+            ip.contact_softness = SpringCoefficients::new(hz, zeta);
+            ip.static_contact_softness = SpringCoefficients::new(hz, zeta);
+        }
+        if let Some(d) = self.prediction {
+            ip.normalized_prediction_distance = d;
+        }
+        if let Some(e) = self.explicit_coriolis {
+            art.set_explicit_coriolis(w, e);
+        }
+        if let Some((hz, zeta)) = self.limit_softness {
+            for i in 1..art.bodies.len() {
+                let (mb, id) = w
+                    .multibody_joints
+                    .get_mut(MultibodyJointHandle(art.bodies[i].0))
+                    .expect("robot link");
+                let joint = &mut mb.link_mut(id).expect("robot link").joint;
+                joint.data.softness = SpringCoefficients::new(hz, zeta);
+            }
+        }
+    }
 }
 
 impl Robot {
@@ -762,12 +813,20 @@ impl Robot {
             links,
             sim,
             build,
+            tuning: PhysicsTuning::default(),
         }
+    }
+
+    /// Applies `tuning` now and to every world built from here on.
+    pub fn set_tuning(&mut self, tuning: PhysicsTuning) {
+        self.tuning = tuning;
+        tuning.apply(&mut self.world, &self.links);
     }
 
     /// Puts the robot at `qpos`/`qvel` (see [`Articulation::set_state`]) in a fresh world.
     pub fn restart(&mut self, qpos: &[f32], qvel: &[f32]) {
         let (mut world, links) = (self.build)(&self.sim);
+        self.tuning.apply(&mut world, &links);
         links.set_state(&mut world, qpos, qvel);
         self.world = world;
         self.links = links;
