@@ -407,24 +407,24 @@ impl Progress {
         {
             return;
         }
-        let seen = |i: usize, so_far: Option<(f64, f64)>| Seen {
+        // Each run's latest progress, read once per line: running, finished or stopped.
+        let progress: Vec<Option<(f64, f64)>> =
+            runs.iter().map(|r| last_progress(&r.dir)).collect();
+        let seen = |i: usize| Seen {
             method: runs[i].id.split('/').next().unwrap_or(""),
             total_env_steps: runs[i].config.run.total_env_steps as f64,
-            so_far,
+            so_far: progress[i],
         };
-        let now: Vec<Seen> = running
-            .keys()
-            .map(|&i| seen(i, last_progress(&runs[i].dir)))
-            .collect();
+        let now: Vec<Seen> = running.keys().map(|&i| seen(i)).collect();
         // Every other run with a progress line: finished ones, and stopped ones left to resume.
         let others: Vec<Seen> = (0..runs.len())
-            .filter(|i| !running.contains_key(i))
-            .filter_map(|i| last_progress(&runs[i].dir).map(|p| seen(i, Some(p))))
+            .filter(|i| !running.contains_key(i) && progress[*i].is_some())
+            .map(seen)
             .collect();
         let todo: Vec<Seen> = left
             .iter()
             .map(|&i| {
-                let mut s = seen(i, last_progress(&runs[i].dir));
+                let mut s = seen(i);
                 // A stopped run left to resume has only its rest to do.
                 if let Some((n, _)) = s.so_far.take() {
                     s.total_env_steps = (s.total_env_steps - n).max(0.0);
