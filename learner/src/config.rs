@@ -430,8 +430,7 @@ impl Method {
                 target, aqe_drop, ..
             } => {
                 if let Method::Dns {
-                    trained_critics: k,
-                    ..
+                    trained_critics: k, ..
                 } = self
                 {
                     if *k == 0 || *k > a.critics {
@@ -764,7 +763,10 @@ impl Config {
             .and_then(|r| r.get("total_env_steps"))
             .is_some();
         // The method's keys make one method or a config error (not a parse error) naming them.
-        let keys = value.get("algo").cloned().map(toml::Value::try_into::<AlgoKeys>);
+        let keys = value
+            .get("algo")
+            .cloned()
+            .map(toml::Value::try_into::<AlgoKeys>);
         if let Some(Ok(keys)) = keys {
             keys.method().map_err(ConfigError::Invalid)?;
         }
@@ -1653,8 +1655,13 @@ mod tests {
         // DPD with w/o RL is a combination the keys have always allowed.
         let c = Config::from_toml_with_overrides(
             "",
-            &["algo.paired_critics=true", "algo.without_rl=true", "algo.actors=2", "algo.critics=4"]
-                .map(String::from),
+            &[
+                "algo.paired_critics=true",
+                "algo.without_rl=true",
+                "algo.actors=2",
+                "algo.critics=4",
+            ]
+            .map(String::from),
         )
         .unwrap();
         assert_eq!(c.algo.method, Method::Dpd { without_rl: true });

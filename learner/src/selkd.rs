@@ -275,8 +275,12 @@ impl Selkd {
                     .filter(|&j| regulariser_of_critic(j) == Regulariser::WeightDecay)
                     .map(|j| j as i64)
                     .collect();
-                let decay = (!decayed.is_empty() && *weight_decay > 0.0)
-                    .then(|| (Tensor::from_slice(&decayed).to_device(device), *weight_decay));
+                let decay = (!decayed.is_empty() && *weight_decay > 0.0).then(|| {
+                    (
+                        Tensor::from_slice(&decayed).to_device(device),
+                        *weight_decay,
+                    )
+                });
                 // The validation rows: the same FIFO, their share of the capacity.
                 let capacity = (cfg.replay_capacity as u64 / validation_every).max(1);
                 (
@@ -293,12 +297,7 @@ impl Selkd {
                     },
                     Some(Avtd {
                         variants: variants.clone(),
-                        validation: ReplayBuffer::new(
-                            capacity as usize,
-                            obs_dim,
-                            act_dim,
-                            device,
-                        ),
+                        validation: ReplayBuffer::new(capacity as usize, obs_dim, act_dim, device),
                         validation_every: *validation_every,
                         selected: 0,
                         validation_td: vec![f64::NAN; variants.len()],
@@ -533,11 +532,11 @@ impl Selkd {
             .expand([heads, m, rows, -1], false)
             .reshape([heads * m, rows, -1]);
         let index = Tensor::from_slice(&critics).to_device(self.device);
-        let q_next = self
-            .target_critics
-            .select(&index)
-            .forward(&x2)
-            .view([heads, m, actors_per_head, b]);
+        let q_next =
+            self.target_critics
+                .select(&index)
+                .forward(&x2)
+                .view([heads, m, actors_per_head, b]);
         let (logp2, alpha) = if own {
             (logp2.view([k, 1, b]), self.alpha().view([k, 1, 1]))
         } else {
@@ -551,7 +550,9 @@ impl Selkd {
             let w: Vec<f32> = (0..heads * m)
                 .map(|_| self.rng.gen_range(0.0f32..1.0))
                 .collect();
-            let w = Tensor::from_slice(&w).view([heads, m]).to_device(self.device);
+            let w = Tensor::from_slice(&w)
+                .view([heads, m])
+                .to_device(self.device);
             self.record(|| Draw::Uniform(w.shallow_clone()));
             &w / w.sum_dim_intlist(1, true, Kind::Float)
         });
@@ -621,9 +622,10 @@ impl Selkd {
         let td = tch::no_grad(|| {
             let y = self.target(&batch, &subsets);
             let (_, per_critic) = self.td_errors(&batch, &y);
-            let per_variant = per_critic
-                .view([self.cfg.actors as i64, -1])
-                .mean_dim(1, false, Kind::Double);
+            let per_variant =
+                per_critic
+                    .view([self.cfg.actors as i64, -1])
+                    .mean_dim(1, false, Kind::Double);
             Vec::<f64>::try_from(per_variant.to_device(Device::Cpu)).expect("f64 errors")
         });
         let avtd = self.avtd.as_mut().expect("AVTD");
@@ -694,10 +696,7 @@ impl Selkd {
     fn actions(&mut self, mu: &Tensor, log_std: &Tensor) -> (Tensor, Tensor) {
         let (k, b) = (mu.size()[0], mu.size()[1]);
         match self.cfg.backbone {
-            Backbone::Td3 => (
-                mu.tanh(),
-                Tensor::zeros([k, b], (Kind::Float, self.device)),
-            ),
+            Backbone::Td3 => (mu.tanh(), Tensor::zeros([k, b], (Kind::Float, self.device))),
             Backbone::Sac => {
                 let eps = self.noise(&[k, b, self.act_dim as i64]);
                 sample(mu, log_std, &eps)
@@ -2001,10 +2000,7 @@ mod tests {
         }
         set_biases(&s, [0.0, 0.9, 3.0]);
         s.draws = Some(Vec::new());
-        assert!(
-            s.select_variant(),
-            "variant 1 replaces variant 0"
-        );
+        assert!(s.select_variant(), "variant 1 replaces variant 0");
         assert_eq!(s.selection().unwrap().0, 1);
         // Drawn from 4·B validation rows.
         let draws = s.draws.take().unwrap();

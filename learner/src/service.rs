@@ -953,11 +953,7 @@ impl Learner {
             wall_seconds: self.wall(),
             selected_variant: self.selkd.selection().map_or(0, |(v, _)| v),
         };
-        let replay = self
-            .cfg
-            .run
-            .checkpoint_replay
-            .then_some(&mut self.replay);
+        let replay = self.cfg.run.checkpoint_replay.then_some(&mut self.replay);
         checkpoint::save(&dir, &mut self.selkd, replay, &state)?;
         checkpoint::write_atomically(
             &self.run_dir.join("checkpoints").join("latest"),
