@@ -490,6 +490,9 @@ fn spawn_worker(
     Ok(pid)
 }
 
+/// Runs the learner and the K workers until the learner exits: restarts a dead worker (with
+/// back-off, up to `--max-restarts`), kills a stalled one, turns a stop signal into the learner's
+/// checkpoint-and-exit, and prints progress. Returns selkd's exit code.
 async fn supervise(
     args: &TrainArgs,
     cfg: &Config,
@@ -499,6 +502,65 @@ async fn supervise(
     worker_bin: &Path,
 ) -> Result<i32> {
     let (tx, mut rx) = mpsc::unbounded_channel::<Event>();
+    let learner_pid = spawn_learner(args, run_dir, run_id, learner_bin, &tx)?;
+    let slots = (0..cfg.algo.actors)
+        .map(|w| spawn_worker(worker_bin, run_dir, run_id, cfg, w, 0, &tx).map(Slot::new))
+        .collect::<Result<Vec<Slot>>>()?;
+    let mut run = Supervisor {
+        args,
+        cfg,
+        run_dir,
+        run_id,
+        worker_bin,
+        tx,
+        learner_pid,
+        slots,
+        tty: std::io::stderr().is_terminal(),
+        started: Instant::now(),
+        last_line: Instant::now() - Duration::from_secs(60),
+        stopping: false,
+        failure: None,
+    };
+    // SIGINT (Ctrl-C), SIGTERM (kill, timeout, systemd, docker, Slurm) and SIGHUP (a closed
+    // terminal) all stop the run the same way: the learner writes a final checkpoint and tells the
+    // workers to exit; selkd then exits 128 + the signal's number.
+    let mut signals = StopSignals::new()?;
+    let mut stopped_by: Option<i32> = None;
+    let learner_status = loop {
+        tokio::select! {
+            sig = signals.next(), if !run.stopping => {
+                stopped_by = Some(sig);
+                say!("\nselkd: stopping ({}): the learner writes a checkpoint, then everything exits", signal_name(sig));
+                run.stop(None);
+            }
+            ev = rx.recv() => match ev {
+                None => bail!("supervision channel closed"),
+                Some(Event::Progress(p)) => run.progress(&p),
+                Some(Event::WorkerExited { worker, generation, code, signal }) => {
+                    run.worker_exited(worker, generation, code, signal)
+                }
+                Some(Event::Restart { worker, generation }) => run.restart(worker, generation)?,
+                Some(Event::Stalled { worker, silent_s }) => run.stalled(worker, silent_s),
+                Some(Event::LearnerExited(status)) => break status,
+            }
+        }
+    };
+    if run.tty {
+        say!();
+    }
+    reap_workers(&run.slots).await;
+    Ok(run.exit_code(learner_status, stopped_by))
+}
+
+/// Starts the learner; its stdout's `PROGRESS` lines go to `logs/progress.jsonl` and, like its
+/// `STALLED` reports and its exit, to `tx`. Returns its pid.
+fn spawn_learner(
+    args: &TrainArgs,
+    run_dir: &Path,
+    run_id: &str,
+    learner_bin: &Path,
+    tx: &mpsc::UnboundedSender<Event>,
+) -> Result<i32> {
     let mut learner_cmd = Command::new(learner_bin);
     die_with_parent(&mut learner_cmd);
     learner_cmd
@@ -519,129 +581,220 @@ async fn supervise(
         .with_context(|| format!("starting {}", learner_bin.display()))?;
     let learner_pid = learner.id().unwrap_or(0) as i32;
     let stdout = learner.stdout.take().expect("piped");
-    {
-        let (tx, tx_exit) = (tx.clone(), tx.clone());
-        let mut progress_log = log_file(run_dir, "progress.jsonl")?;
-        tokio::spawn(async move {
-            let mut lines = BufReader::new(stdout).lines();
-            while let Ok(Some(line)) = lines.next_line().await {
-                if let Some(json) = line.strip_prefix("PROGRESS ") {
-                    let _ = writeln!(progress_log, "{json}");
-                    if let Ok(v) = serde_json::from_str(json) {
-                        let _ = tx.send(Event::Progress(v));
-                    }
-                } else if let Some(json) = line.strip_prefix("STALLED ") {
-                    if let Ok(v) = serde_json::from_str::<serde_json::Value>(json) {
-                        if let Some(worker) = v["worker"].as_u64() {
-                            let silent_s = v["silent_s"].as_f64().unwrap_or(0.0);
-                            let _ = tx.send(Event::Stalled {
-                                worker: worker as usize,
-                                silent_s,
-                            });
-                        }
+    let (tx, tx_exit) = (tx.clone(), tx.clone());
+    let mut progress_log = log_file(run_dir, "progress.jsonl")?;
+    tokio::spawn(async move {
+        let mut lines = BufReader::new(stdout).lines();
+        while let Ok(Some(line)) = lines.next_line().await {
+            if let Some(json) = line.strip_prefix("PROGRESS ") {
+                let _ = writeln!(progress_log, "{json}");
+                if let Ok(v) = serde_json::from_str(json) {
+                    let _ = tx.send(Event::Progress(v));
+                }
+            } else if let Some(json) = line.strip_prefix("STALLED ") {
+                if let Ok(v) = serde_json::from_str::<serde_json::Value>(json) {
+                    if let Some(worker) = v["worker"].as_u64() {
+                        let silent_s = v["silent_s"].as_f64().unwrap_or(0.0);
+                        let _ = tx.send(Event::Stalled {
+                            worker: worker as usize,
+                            silent_s,
+                        });
                     }
                 }
             }
-        });
+        }
+    });
+    tokio::spawn(async move {
+        if let Ok(status) = learner.wait().await {
+            let _ = tx_exit.send(Event::LearnerExited(status));
+        }
+    });
+    Ok(learner_pid)
+}
+
+/// What `supervise` decides from: the run's processes and whether it is stopping, and why.
+struct Supervisor<'a> {
+    args: &'a TrainArgs,
+    cfg: &'a Config,
+    run_dir: &'a Path,
+    run_id: &'a str,
+    worker_bin: &'a Path,
+    tx: mpsc::UnboundedSender<Event>,
+    learner_pid: i32,
+    slots: Vec<Slot>,
+    tty: bool,
+    started: Instant,
+    /// When the last progress line was printed (a non-terminal gets one every 10 s).
+    last_line: Instant,
+    /// The learner was told to stop; deaths and restarts no longer matter.
+    stopping: bool,
+    /// Why the run failed, once it has.
+    failure: Option<String>,
+}
+
+impl Supervisor<'_> {
+    /// Tells the learner to write its checkpoint and end the run (`failure`: because the run failed).
+    fn stop(&mut self, failure: Option<String>) {
+        self.stopping = true;
+        if failure.is_some() {
+            self.failure = failure;
+        }
+        unsafe { libc::kill(self.learner_pid, libc::SIGTERM) };
+    }
+
+    fn progress(&mut self, p: &serde_json::Value) {
+        let line = progress_line(p, self.started.elapsed());
+        if self.tty {
+            sayp!("\r\x1b[K{line}");
+        } else if self.last_line.elapsed() >= Duration::from_secs(10) {
+            say!("{line}");
+            self.last_line = Instant::now();
+        }
+    }
+
+    /// A worker process ended: told to (exit 0), unable to join (the run fails with its reason),
+    /// or died (restarted after its back-off, unless it died too often).
+    fn worker_exited(
+        &mut self,
+        worker: usize,
+        generation: u32,
+        code: Option<i32>,
+        signal: Option<i32>,
+    ) {
+        if generation != self.slots[worker].generation || self.stopping {
+            return;
+        }
+        self.slots[worker].pid = None;
+        if code == Some(0) {
+            return; // the learner told it to stop
+        }
+        let log = self
+            .run_dir
+            .join("logs")
+            .join(format!("worker-{worker}.log"));
+        if code == Some(selkd_protocol::EXIT_CANNOT_JOIN) {
+            // Its own one-line reason, as the worker wrote it last.
+            let why = std::fs::read_to_string(&log).ok().and_then(|t| {
+                t.lines()
+                    .rev()
+                    .find(|l| l.contains(": error: "))
+                    .map(|l| l.split_once(": error: ").map_or(l, |(_, w)| w).to_string())
+            });
+            let why = why.map_or(String::new(), |w| format!(": {w}"));
+            let failure = format!(
+                "worker {worker} cannot join the run{why}; see {}",
+                log.display()
+            );
+            return self.stop(Some(failure));
+        }
+        let (max, window_s) = (self.args.max_restarts, self.args.restart_window);
+        let window = Duration::from_secs_f64(window_s); // bounded by its parser
+        let Some(wait) = self.slots[worker].died(max, window) else {
+            let deaths = self.slots[worker].deaths.len();
+            let failure = format!("worker {worker} died {deaths} times within {window_s:.0} s (--max-restarts {max}, --restart-window {window_s}); giving up; see {}", log.display());
+            return self.stop(Some(failure));
+        };
+        self.slots[worker].generation += 1;
+        let generation = self.slots[worker].generation;
+        let why = match (code, signal) {
+            (_, Some(s)) => format!("signal {s}"),
+            (Some(c), _) => format!("exit code {c}"),
+            _ => "unknown".into(),
+        };
+        let after = if wait.is_zero() {
+            String::new()
+        } else {
+            format!(" in {:.1} s", wait.as_secs_f64())
+        };
+        let nl = if self.tty { "\n" } else { "" };
+        say!("{nl}selkd: worker {worker} died ({why}); restarting it{after} (generation {generation})");
+        let tx = self.tx.clone();
         tokio::spawn(async move {
-            if let Ok(status) = learner.wait().await {
-                let _ = tx_exit.send(Event::LearnerExited(status));
-            }
+            tokio::time::sleep(wait).await;
+            let _ = tx.send(Event::Restart { worker, generation });
         });
     }
 
-    let k = cfg.algo.actors;
-    let mut slots = (0..k)
-        .map(|w| spawn_worker(worker_bin, run_dir, run_id, cfg, w, 0, &tx).map(Slot::new))
-        .collect::<Result<Vec<Slot>>>()?;
-    let window = Duration::from_secs_f64(args.restart_window); // bounded by its parser
-    let tty = std::io::stderr().is_terminal();
-    let started = Instant::now();
-    let mut last_line = Instant::now() - Duration::from_secs(60);
-    let mut stopping = false;
-    let mut failure: Option<String> = None;
-    // SIGINT (Ctrl-C), SIGTERM (kill, timeout, systemd, docker, Slurm) and SIGHUP (a closed
-    // terminal) all stop the run the same way: the learner writes a final checkpoint and tells the
-    // workers to exit; selkd then exits 128 + the signal's number.
-    let mut signals = StopSignals::new()?;
-    let mut stopped_by: Option<i32> = None;
-    let learner_status = loop {
-        tokio::select! {
-            sig = signals.next(), if !stopping => {
-                stopping = true;
-                stopped_by = Some(sig);
-                say!("\nselkd: stopping ({}): the learner writes a checkpoint, then everything exits", signal_name(sig));
-                unsafe { libc::kill(learner_pid, libc::SIGTERM) };
+    /// A restart's back-off is over: starts the worker's next generation, unless it is stale.
+    fn restart(&mut self, worker: usize, generation: u32) -> Result<()> {
+        if self.stopping || generation != self.slots[worker].generation {
+            return Ok(());
+        }
+        let (bin, dir, id) = (self.worker_bin, self.run_dir, self.run_id);
+        let pid = spawn_worker(bin, dir, id, self.cfg, worker, generation, &self.tx)?;
+        self.slots[worker].pid = Some(pid);
+        self.slots[worker].started = Instant::now();
+        Ok(())
+    }
+
+    /// The learner waited `silent_s` on a silent worker: kill it, and its death restarts it.
+    fn stalled(&mut self, worker: usize, silent_s: f64) {
+        // Only a running worker is killed (a dead one's pid may already be another process's).
+        if let (false, Some(pid)) = (self.stopping, self.slots.get(worker).and_then(|s| s.pid)) {
+            let nl = if self.tty { "\n" } else { "" };
+            say!("{nl}selkd: worker {worker} sent nothing for {silent_s:.0} s while the run waited on it (run.worker_timeout = {}); killing it", self.cfg.run.worker_timeout);
+            unsafe { libc::kill(pid as i32, libc::SIGKILL) };
+        }
+    }
+
+    /// The run's last line and selkd's exit code, from how the learner ended.
+    fn exit_code(&self, learner_status: std::process::ExitStatus, stopped_by: Option<i32>) -> i32 {
+        let run_dir = self.run_dir;
+        let learner_log = run_dir.join("logs").join("learner.log");
+        match (learner_status.code(), &self.failure) {
+            (_, Some(f)) => {
+                say!("selkd: run failed: {f}");
+                1
             }
-            ev = rx.recv() => match ev {
-                None => bail!("supervision channel closed"),
-                Some(Event::Progress(p)) => {
-                    let line = progress_line(&p, started.elapsed());
-                    if tty {
-                        sayp!("\r\x1b[K{line}");
-                    } else if last_line.elapsed() >= Duration::from_secs(10) {
-                        say!("{line}");
-                        last_line = Instant::now();
-                    }
-                }
-                Some(Event::WorkerExited { worker, generation: g, code, signal }) => {
-                    if g != slots[worker].generation || stopping {
-                        continue;
-                    }
-                    slots[worker].pid = None;
-                    if code == Some(0) {
-                        continue; // the learner told it to stop
-                    }
-                    if code == Some(selkd_protocol::EXIT_CANNOT_JOIN) {
-                        let log = run_dir.join("logs").join(format!("worker-{worker}.log"));
-                        // Its own one-line reason, as the worker wrote it last.
-                        let why = std::fs::read_to_string(&log).ok().and_then(|t| t.lines().rev().find(|l| l.contains(": error: ")).map(|l| l.split_once(": error: ").map_or(l, |(_, w)| w).to_string()));
-                        failure = Some(format!("worker {worker} cannot join the run{}; see {}", why.map_or(String::new(), |w| format!(": {w}")), log.display()));
-                        stopping = true;
-                        unsafe { libc::kill(learner_pid, libc::SIGTERM) };
-                        continue;
-                    }
-                    let Some(wait) = slots[worker].died(args.max_restarts, window) else {
-                        failure = Some(format!("worker {worker} died {} times within {:.0} s (--max-restarts {}, --restart-window {}); giving up; see {}", slots[worker].deaths.len(), args.restart_window, args.max_restarts, args.restart_window, run_dir.join("logs").join(format!("worker-{worker}.log")).display()));
-                        stopping = true;
-                        unsafe { libc::kill(learner_pid, libc::SIGTERM) };
-                        continue;
-                    };
-                    slots[worker].generation += 1;
-                    let generation = slots[worker].generation;
-                    let why = match (code, signal) { (_, Some(s)) => format!("signal {s}"), (Some(c), _) => format!("exit code {c}"), _ => "unknown".into() };
-                    let after = if wait.is_zero() { String::new() } else { format!(" in {:.1} s", wait.as_secs_f64()) };
-                    say!("{}selkd: worker {worker} died ({why}); restarting it{after} (generation {generation})", if tty { "\n" } else { "" });
-                    let tx = tx.clone();
-                    tokio::spawn(async move {
-                        tokio::time::sleep(wait).await;
-                        let _ = tx.send(Event::Restart { worker, generation });
-                    });
-                }
-                Some(Event::Restart { worker, generation }) => {
-                    if stopping || generation != slots[worker].generation {
-                        continue;
-                    }
-                    let pid = spawn_worker(worker_bin, run_dir, run_id, cfg, worker, generation, &tx)?;
-                    slots[worker].pid = Some(pid);
-                    slots[worker].started = Instant::now();
-                }
-                Some(Event::Stalled { worker, silent_s }) => {
-                    // Only a running worker is killed (a dead one's pid may already be another
-                    // process's); its death restarts it as any other.
-                    if let (false, Some(pid)) = (stopping, slots.get(worker).and_then(|s| s.pid)) {
-                        say!("{}selkd: worker {worker} sent nothing for {silent_s:.0} s while the run waited on it (run.worker_timeout = {}); killing it", if tty { "\n" } else { "" }, cfg.run.worker_timeout);
-                        unsafe { libc::kill(pid as i32, libc::SIGKILL) };
-                    }
-                }
-                Some(Event::LearnerExited(status)) => break status,
+            (Some(0), None) => {
+                say!(
+                    "selkd: done in {:.0} s. Metrics: {}; checkpoint: {}",
+                    self.started.elapsed().as_secs_f64(),
+                    run_dir.join("metrics.csv").display(),
+                    run_dir.join("checkpoints").join("final").display()
+                );
+                0
+            }
+            // The learner exits 128 + the signal that stopped it: selkd's own, else the one it got
+            // directly (`kill` of the learner alone), so SIGTERM reads as 143, not as Ctrl-C.
+            (Some(code @ (129 | 130 | 143)), None) => {
+                say!(
+                    "selkd: stopped; checkpoint at {}",
+                    run_dir.join("checkpoints").join("final").display()
+                );
+                128 + stopped_by.unwrap_or(code - 128)
+            }
+            _ => {
+                say!(
+                    "selkd: the learner failed ({learner_status}): {}\nselkd: full log: {}",
+                    last_error_line(&learner_log),
+                    learner_log.display()
+                );
+                1
             }
         }
-    };
-    if tty {
-        say!();
     }
-    // Workers leave on the learner's stop order; any still running after a grace period are killed.
+}
+
+/// The learner's own error line, else its last ERROR, else its last line.
+fn last_error_line(learner_log: &Path) -> String {
+    std::fs::read_to_string(learner_log)
+        .ok()
+        .and_then(|t| {
+            let lines: Vec<&str> = t.lines().filter(|l| !l.trim().is_empty()).collect();
+            lines
+                .iter()
+                .rev()
+                .find(|l| l.starts_with("learner: error:"))
+                .or_else(|| lines.iter().rev().find(|l| l.contains("ERROR")))
+                .or(lines.last())
+                .map(|l| l.to_string())
+        })
+        .unwrap_or_default()
+}
+
+/// Workers leave on the learner's stop order; any still running after a grace period are killed.
+async fn reap_workers(slots: &[Slot]) {
     let deadline = Instant::now() + Duration::from_secs(5);
     let pids: Vec<u32> = slots.iter().filter_map(|s| s.pid).collect();
     while Instant::now() < deadline && pids.iter().any(|&p| alive(p)) {
@@ -650,52 +803,6 @@ async fn supervise(
     for &p in &pids {
         if alive(p) {
             unsafe { libc::kill(p as i32, libc::SIGKILL) };
-        }
-    }
-    let learner_log = run_dir.join("logs").join("learner.log");
-    match (learner_status.code(), failure) {
-        (_, Some(f)) => {
-            say!("selkd: run failed: {f}");
-            Ok(1)
-        }
-        (Some(0), None) => {
-            say!(
-                "selkd: done in {:.0} s. Metrics: {}; checkpoint: {}",
-                started.elapsed().as_secs_f64(),
-                run_dir.join("metrics.csv").display(),
-                run_dir.join("checkpoints").join("final").display()
-            );
-            Ok(0)
-        }
-        // The learner exits 128 + the signal that stopped it: selkd's own, else the one it got
-        // directly (`kill` of the learner alone), so SIGTERM reads as 143, not as Ctrl-C.
-        (Some(code @ (129 | 130 | 143)), None) => {
-            say!(
-                "selkd: stopped; checkpoint at {}",
-                run_dir.join("checkpoints").join("final").display()
-            );
-            Ok(128 + stopped_by.unwrap_or(code - 128))
-        }
-        _ => {
-            // The learner's own error line, else its last ERROR, else its last line.
-            let last = std::fs::read_to_string(&learner_log)
-                .ok()
-                .and_then(|t| {
-                    let lines: Vec<&str> = t.lines().filter(|l| !l.trim().is_empty()).collect();
-                    lines
-                        .iter()
-                        .rev()
-                        .find(|l| l.starts_with("learner: error:"))
-                        .or_else(|| lines.iter().rev().find(|l| l.contains("ERROR")))
-                        .or(lines.last())
-                        .map(|l| l.to_string())
-                })
-                .unwrap_or_default();
-            say!(
-                "selkd: the learner failed ({learner_status}): {last}\nselkd: full log: {}",
-                learner_log.display()
-            );
-            Ok(1)
         }
     }
 }
