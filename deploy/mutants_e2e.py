@@ -1,0 +1,89 @@
+#!/usr/bin/env python3
+"""Mutation testing of the process code against the end-to-end tests.
+
+cargo-mutants builds and tests one package; the processes' code (the actor-worker, the learner's
+service, the protocol) is exercised by `tests/`, which start the release binaries of other
+packages, which `cargo test -p selkd-tests` does not rebuild. So this applies cargo-mutants'
+own mutants (its `--list --json --diff` output) one at a time, rebuilds the binaries, and runs
+test stages in order until one fails (caught) or all pass (missed):
+
+    cargo mutants --in-place --list --json --diff --package selkd-actor-worker \\
+        --file actor-worker/src/rollout.rs > /tmp/rollout.json
+    python3 deploy/mutants_e2e.py /tmp/rollout.json target/mutants-e2e/rollout.csv \\
+        --build "cargo build --release -p selkd-actor-worker" \\
+        --stage "cargo test --release -p selkd-actor-worker" \\
+        --stage "cargo test --release -p selkd-tests --test data_path"
+
+Resumable: mutants already in OUT are skipped. The file is restored after each mutant (and on
+Ctrl-C); it refuses to start with uncommitted changes in the mutated files. Outcomes: caught
+(with the stage that caught it), missed, unviable (does not build), timeout (counts as caught).
+`deploy/mutants.sh` is the learner's in-package reading; docs/mutants.md records both.
+"""
+import argparse
+import csv
+import json
+import os
+import subprocess
+import sys
+import time
+
+
+def sh(cmd, timeout):
+    try:
+        r = subprocess.run(cmd, shell=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                           timeout=timeout)
+        return "ok" if r.returncode == 0 else "fail"
+    except subprocess.TimeoutExpired:
+        return "timeout"
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("mutants", help="cargo mutants --list --json --diff output")
+    p.add_argument("out", help="results CSV (appended; finished mutants are skipped)")
+    p.add_argument("--build", required=True, help="shell command that rebuilds what the tests run")
+    p.add_argument("--stage", action="append", required=True, help="a test command; first failing one catches")
+    p.add_argument("--re", default="", help="only mutants whose name contains this text")
+    p.add_argument("--timeout", type=int, default=600, help="seconds per build or stage")
+    a = p.parse_args()
+
+    mutants = [m for m in json.load(open(a.mutants)) if a.re in m["name"]]
+    files = sorted({m["file"] for m in mutants})
+    dirty = subprocess.run(["git", "status", "--porcelain", "--", *files], capture_output=True, text=True).stdout
+    if dirty.strip():
+        sys.exit(f"mutants_e2e: uncommitted changes in {' '.join(files)}; commit or stash them first")
+    done = set()
+    if os.path.exists(a.out):
+        done = {row["name"] for row in csv.DictReader(open(a.out))}
+    os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
+    new = not os.path.exists(a.out)
+    with open(a.out, "a", newline="") as f:
+        w = csv.writer(f)
+        if new:
+            w.writerow(["name", "outcome", "stage", "seconds"])
+        todo = [m for m in mutants if m["name"] not in done]
+        print(f"mutants_e2e: {len(todo)} of {len(mutants)} mutants to run", flush=True)
+        for i, m in enumerate(todo):
+            t0 = time.time()
+            try:
+                subprocess.run(["patch", "-s", "-p0", m["file"]], input=m["diff"], text=True, check=True)
+                outcome, stage = "unviable", ""
+                if sh(a.build, a.timeout) == "ok":
+                    outcome = "missed"
+                    for n, cmd in enumerate(a.stage, 1):
+                        r = sh(cmd, a.timeout)
+                        if r != "ok":
+                            outcome, stage = ("caught" if r == "fail" else "timeout"), str(n)
+                            break
+            finally:
+                subprocess.run(["git", "checkout", "--", m["file"]], check=True)
+            secs = round(time.time() - t0)
+            w.writerow([m["name"], outcome, stage, secs])
+            f.flush()
+            print(f"[{i + 1}/{len(todo)}] {outcome:8} {stage:2} {secs:4}s {m['name']}", flush=True)
+    # Leave the binaries built from the unmutated source.
+    sh(a.build, a.timeout)
+
+
+if __name__ == "__main__":
+    main()
