@@ -467,3 +467,59 @@ fn a_second_launcher_or_learner_is_refused_naming_the_holder() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A worker that keeps dying past `--max-restarts` within `--restart-window` ends the run: selkd
+/// says so in one line naming the flags and the worker's log, exits 1, and the learner still
+/// writes its final checkpoint (nothing trained is lost).
+#[test]
+fn a_worker_that_keeps_dying_ends_the_run_with_its_reason_and_a_checkpoint() {
+    let dir = temp_dir("gives-up");
+    let mut c = train(
+        &dir,
+        &small_run(&["algo.actors=2", "run.total_env_steps=200000"]),
+    );
+    c.args(["--max-restarts", "1", "--restart-window", "600"]);
+    let mut child = spawn(c);
+    let (run_id, mut stderr) = run_id(&mut child);
+    let t0 = Instant::now();
+    // Two deaths of worker 0, the second once its successor runs.
+    for death in 1..=2 {
+        let pid = loop {
+            assert!(
+                t0.elapsed() < Duration::from_secs(120),
+                "worker 0 never ran (death {death})"
+            );
+            if env_steps_so_far(&dir) >= 500 {
+                if let [pid] = worker_pids(&run_id, 0)[..] {
+                    break pid;
+                }
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        };
+        unsafe { libc::kill(pid, libc::SIGKILL) };
+        // Wait for the pid to go before looking for a successor.
+        while worker_pids(&run_id, 0).contains(&pid) {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stderr, &mut rest).unwrap();
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(1), "{rest}");
+    let line = rest
+        .lines()
+        .find(|l| l.starts_with("selkd: run failed: "))
+        .unwrap_or_else(|| panic!("no failure line:\n{rest}"));
+    assert!(
+        line.contains("worker 0 died 2 times within 600 s (--max-restarts 1, --restart-window 600); giving up; see")
+            && line.ends_with("worker-0.log"),
+        "{line}"
+    );
+    assert!(
+        dir.join("checkpoints/final/state.json").exists(),
+        "no final checkpoint after giving up:\n{}",
+        log(&dir, "learner.log")
+    );
+    assert!(worker_pids(&run_id, 1).is_empty(), "worker 1 left running");
+    let _ = std::fs::remove_dir_all(&dir);
+}
