@@ -107,7 +107,10 @@ fn pendulum_rows_are_real_steps_and_a_killed_worker_loses_or_repeats_none() {
     // Kill worker 1 mid-episode: its successor must replay the episode, not store it again.
     let t0 = Instant::now();
     while env_steps_so_far(&dir) < 2500 {
-        assert!(t0.elapsed() < Duration::from_secs(120), "the run does not start");
+        assert!(
+            t0.elapsed() < Duration::from_secs(120),
+            "the run does not start"
+        );
         std::thread::sleep(Duration::from_millis(20));
     }
     let pids = worker_pids(&id, 1);
@@ -116,11 +119,21 @@ fn pendulum_rows_are_real_steps_and_a_killed_worker_loses_or_repeats_none() {
     let mut rest = String::new();
     std::io::Read::read_to_string(&mut stderr, &mut rest).unwrap();
     let status = child.wait().unwrap();
-    assert!(status.success(), "the run did not finish after the kill ({status}):\n{rest}");
-    assert!(rest.contains("worker 1 died (signal 9); restarting it"), "{rest}");
+    assert!(
+        status.success(),
+        "the run did not finish after the kill ({status}):\n{rest}"
+    );
+    assert!(
+        rest.contains("worker 1 died (signal 9); restarting it"),
+        "{rest}"
+    );
 
     let rows = replay_rows(&dir, 3, 1);
-    assert_eq!(rows.len(), steps, "the replay buffer holds every env step once");
+    assert_eq!(
+        rows.len(),
+        steps,
+        "the replay buffer holds every env step once"
+    );
     for (i, r) in rows.iter().enumerate() {
         let (next, reward) = pendulum_step(&r.s, r.a[0]);
         for d in 0..3 {
@@ -178,7 +191,11 @@ fn hopper_rows_terminate_exactly_when_unhealthy(tag: &str, env: &str, actors: us
     ]);
     assert_success(&run(train(&dir, &sets)), &dir);
     let rows = replay_rows(&dir, 11, 3);
-    assert_eq!(rows.len(), steps, "the replay buffer holds every env step once");
+    assert_eq!(
+        rows.len(),
+        steps,
+        "the replay buffer holds every env step once"
+    );
     let mut terminal = 0;
     for (i, r) in rows.iter().enumerate() {
         assert!(
@@ -200,14 +217,20 @@ fn hopper_rows_terminate_exactly_when_unhealthy(tag: &str, env: &str, actors: us
     for ep in &eps {
         let last = &rows[*ep.last().unwrap()];
         for &i in &ep[..ep.len() - 1] {
-            assert_eq!(rows[i].terminated, 0.0, "row {i}: a terminal step has a successor");
+            assert_eq!(
+                rows[i].terminated, 0.0,
+                "row {i}: a terminal step has a successor"
+            );
         }
         if last.terminated == 0.0 {
             assert!(ep.len() <= 1000, "an episode longer than the time limit");
             open += (ep.len() < 1000) as usize;
         }
     }
-    assert!(terminal > 10, "{terminal} terminations in {steps} steps: the check saw too few");
+    assert!(
+        terminal > 10,
+        "{terminal} terminations in {steps} steps: the check saw too few"
+    );
     assert!(
         open <= actors,
         "{open} episodes end neither in a termination nor at the time limit (at most one per worker, when the run stopped)"
@@ -222,9 +245,5 @@ fn hopper_rows_are_terminal_exactly_when_the_next_state_is_unhealthy() {
 
 #[test]
 fn gymnasium_hopper_rows_are_terminal_exactly_when_the_next_state_is_unhealthy() {
-    hopper_rows_terminate_exactly_when_unhealthy(
-        "data-path-gym-hopper",
-        "gymnasium:Hopper-v5",
-        2,
-    );
+    hopper_rows_terminate_exactly_when_unhealthy("data-path-gym-hopper", "gymnasium:Hopper-v5", 2);
 }
