@@ -24,6 +24,7 @@ pub mod squashed_gaussian;
 pub mod targets;
 pub mod tensorboard;
 pub mod threads;
+pub mod workers;
 
 /// Sets two things that the C libraries underneath read only once, when the process starts, then
 /// executes the program again, once; a setting already in the environment is left alone:

@@ -8,9 +8,10 @@ use crate::metrics::{self, Intake, MetricsRow, Progress};
 use crate::ranking::Ranking;
 use crate::rate_limit::RateLimiter;
 use crate::replay::ReplayBuffer;
-use crate::rollout::{Pending, Rollout, Watchdog};
+use crate::rollout::Pending;
 use crate::selkd::{RoundStats, Selkd};
 use crate::tensorboard::EventWriter;
+use crate::workers::{Workers, GONE_CHECK};
 use anyhow::{anyhow, bail, Context, Result};
 use selkd_protocol::{
     self as proto, services, Control, Handshake, LearnerPorts, ReportKind, Services,
@@ -50,54 +51,258 @@ pub fn parse_device(s: &str) -> Result<Device> {
     Ok(device)
 }
 
+/// The learner process's state: the training itself (SELKD, its replay buffer, the ranking and
+/// the rate limiter), then the rest in named parts, each holding what one concern needs.
 pub struct Learner {
     cfg: Config,
     /// The env's spec, made once: a `gymnasium:` env is a `gymnasium.make` in Python.
     spec: selkd_envs::EnvSpec,
-    run_dir: PathBuf,
+    /// The number of actors, and of workers (one per actor).
     k: usize,
+    /// How a transition's values split into s, a, r, s', terminated, truncated.
     row: TransitionRow,
     selkd: Selkd,
     replay: ReplayBuffer,
     ranking: Ranking,
     limiter: RateLimiter,
-    /// Per worker: where its rollout stands, as received.
-    rollouts: Vec<Rollout>,
-    /// Per worker: the process (incarnation) whose transitions are taken; `None` until one has
-    /// its cursor.
-    accepting: Vec<Option<u64>>,
-    /// Per worker: a process that said hello and waits for its cursor.
-    cursor_due: Vec<Option<u64>>,
-    watchdog: Watchdog,
-    /// Async: per worker, how far it may step (see `rate_limit::top_up`).
-    granted: Vec<u64>,
-    /// Per worker: when the learner last heard from its accepted process.
-    last_heard: Vec<Instant>,
-    /// Async: per worker, its grant was taken back (its process is gone); it gets no new one
-    /// until it is heard from again.
-    benched: Vec<bool>,
-    grant_turn: usize,
+    /// The worker connections: rollout records, accepted processes, cursors, grants, watchdog.
+    workers: Workers,
+    /// The evaluation epochs and which of them have their metrics row.
+    epochs: Epochs,
+    /// The counters and the latest round's numbers.
+    stats: Stats,
+    /// The run directory, metrics file, TensorBoard events, wall clock and checkpoint schedule.
+    out: Outputs,
+}
+
+/// What the run has done so far: the learner's counters and the latest round's numbers. All of
+/// it goes into checkpoints, so a resumed run carries on counting.
+struct Stats {
+    /// Env steps stored (or held out, or dropped as non-finite): the budget counts these.
     inserted: u64,
     lockstep_rounds: u64,
     weights_version: u64,
+    /// Dropped transitions and the policy lag of those stored.
+    intake: Intake,
+    /// What the latest round measured: the next metrics row and `live/` scalars report it.
+    last_round: RoundStats,
+}
+
+impl Stats {
+    fn from_resumed(resumed: Option<&TrainingState>) -> Self {
+        Self {
+            inserted: resumed.map_or(0, |s| s.inserted),
+            lockstep_rounds: resumed.map_or(0, |s| s.lockstep_rounds),
+            weights_version: resumed.map_or(1, |s| s.weights_version),
+            intake: resumed.map_or_else(Intake::default, |s| {
+                Intake::restore(s.dropped, s.policy_lag)
+            }),
+            last_round: resumed
+                .and_then(|s| s.last_round.as_ref())
+                .map_or_else(RoundStats::default, RoundStats::from),
+        }
+    }
+}
+
+/// The evaluation epochs: the one workers are asked to evaluate, what each worker reported, and
+/// which epochs have their metrics row. A row waits for every worker's evaluation of its epoch,
+/// so it is written after the epoch ended, with the env steps at which it ended.
+struct Epochs {
+    /// The latest epoch that ended (the workers evaluate it).
     eval_epoch: u64,
     /// (epoch, env steps at which it ended) for every epoch whose row is not written yet. An
     /// epoch ends at the first round boundary at or past each multiple of `eval.epoch_env_steps`.
     epoch_ends: VecDeque<(u64, u64)>,
+    /// Per actor: the latest epoch it reported an evaluation of.
     eval_reported: Vec<u64>,
     /// Per actor: (epoch, success rate) of its latest evaluation; NaN for tasks without success.
     eval_success: Vec<(u64, f64)>,
-    pending: Vec<VecDeque<Pending>>,
-    /// Dropped transitions and the policy lag of those stored.
-    intake: Intake,
-    last_stats: RoundStats,
+    /// Epochs whose metrics row is written.
     epochs_logged: u64,
-    next_checkpoint: u64,
-    started: Instant,
-    wall_offset: f64,
+}
+
+impl Epochs {
+    fn from_resumed(resumed: Option<&TrainingState>, k: usize) -> Self {
+        // Epochs whose row was written when the checkpoint was taken; the evaluation of any later
+        // epoch was in flight and is asked for again.
+        let epochs_logged = resumed.map_or(0, |s| s.epochs_logged.unwrap_or(s.eval_epoch));
+        Self {
+            eval_epoch: resumed.map_or(0, |s| s.eval_epoch),
+            epoch_ends: resumed
+                .map_or_else(VecDeque::new, |s| s.epoch_ends.iter().copied().collect()),
+            eval_reported: vec![epochs_logged; k],
+            eval_success: vec![(0, f64::NAN); k],
+            epochs_logged,
+        }
+    }
+
+    /// Whether every actor's evaluation of the latest epoch is in.
+    fn evals_in(&self) -> bool {
+        self.eval_reported.iter().all(|&e| e >= self.eval_epoch)
+    }
+
+    /// Worker `w` reported its evaluation of `epoch`. Returns false for one already counted.
+    fn evaluation(&mut self, w: usize, epoch: u64, success_rate: f64) -> bool {
+        if epoch <= self.eval_reported[w] {
+            return false;
+        }
+        self.eval_reported[w] = epoch;
+        self.eval_success[w] = (epoch, success_rate);
+        true
+    }
+
+    /// The next epoch whose evaluations are all in but whose row is not written, with the env
+    /// steps at which it ended (a multiple of `epoch_env_steps` if not on record); it counts as
+    /// logged from here on.
+    fn next_to_log(&mut self, epoch_env_steps: u64) -> Option<(u64, u64)> {
+        let complete = *self.eval_reported.iter().min().unwrap_or(&0);
+        if self.epochs_logged >= complete.min(self.eval_epoch) {
+            return None;
+        }
+        self.epochs_logged += 1;
+        let e = self.epochs_logged;
+        while self.epoch_ends.front().is_some_and(|&(epoch, _)| epoch < e) {
+            self.epoch_ends.pop_front();
+        }
+        let env_steps = match self.epoch_ends.front() {
+            Some(&(epoch, steps)) if epoch == e => steps,
+            _ => e * epoch_env_steps,
+        };
+        Some((e, env_steps))
+    }
+}
+
+/// Where the run's results go: its directory (checkpoints), `metrics.csv`, TensorBoard events,
+/// the wall clock they carry (continued across resumes), and when the next periodic checkpoint
+/// is due.
+struct Outputs {
+    run_dir: PathBuf,
     metrics: std::fs::File,
     /// TensorBoard events (`RUN/tb/`); `None` if the file could not be made (logged).
     tb: Option<EventWriter>,
+    started: Instant,
+    /// The wall seconds of the runs this one resumes.
+    wall_offset: f64,
+    next_checkpoint: u64,
+}
+
+impl Outputs {
+    /// Opens `metrics.csv` for appending. A resumed run drops the rows written after its
+    /// checkpoint (by the run that was stopped or killed): this one writes them again, so each
+    /// epoch has one row.
+    fn open_metrics(
+        run_dir: &Path,
+        resumed: bool,
+        epochs_logged: u64,
+        k: usize,
+    ) -> Result<std::fs::File> {
+        let metrics_path = run_dir.join("metrics.csv");
+        if resumed && metrics_path.exists() {
+            truncate_metrics(&metrics_path, epochs_logged)?;
+        }
+        let fresh_metrics = !resumed || !metrics_path.exists();
+        let mut metrics = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&metrics_path)
+            .with_context(|| format!("opening {}", metrics_path.display()))?;
+        if fresh_metrics {
+            writeln!(metrics, "{}", MetricsRow::header(k))?;
+        }
+        Ok(metrics)
+    }
+
+    /// The outputs around `metrics`; TensorBoard events start at `inserted`, and the next
+    /// periodic checkpoint is the next multiple of `checkpoint_every` past it.
+    fn new(
+        run_dir: &Path,
+        metrics: std::fs::File,
+        inserted: u64,
+        checkpoint_every: u64,
+        resumed: Option<&TrainingState>,
+    ) -> Self {
+        Self {
+            next_checkpoint: inserted
+                .checked_div(checkpoint_every)
+                .map_or(0, |n| (n + 1) * checkpoint_every),
+            started: Instant::now(),
+            wall_offset: resumed.map_or(0.0, |s| s.wall_seconds),
+            metrics,
+            tb: EventWriter::create(&run_dir.join("tb"), inserted)
+                .map_err(|e| tracing::warn!("no TensorBoard events for this run: {e:#}"))
+                .ok(),
+            run_dir: run_dir.to_path_buf(),
+        }
+    }
+
+    fn wall(&self) -> f64 {
+        self.wall_offset + self.started.elapsed().as_secs_f64()
+    }
+
+    /// Writes `values` at `step` and flushes; after a failed write (a full disk) the run goes on
+    /// without TensorBoard events.
+    fn write_scalars(&mut self, step: u64, values: &[(String, f64)]) {
+        let Some(tb) = self.tb.as_mut() else {
+            return;
+        };
+        let written: Result<()> = values
+            .iter()
+            .try_for_each(|(tag, v)| tb.scalar(tag, step, *v))
+            .and_then(|()| tb.flush());
+        if let Err(e) = written {
+            tracing::warn!("TensorBoard events stop here: {e:#}");
+            self.tb = None;
+        }
+    }
+}
+
+/// What `run`'s loop keeps from one pass to the next: what it last sent, when it last did its
+/// periodic chores, and the rates it last measured.
+struct Pass {
+    /// A pass that trained does not wait for a wake: more rounds may be due.
+    trained_last: bool,
+    last_control: Option<Control>,
+    ranking_version: u64,
+    last_progress: Instant,
+    last_live: Instant,
+    last_connect: Instant,
+    last_gone_check: Instant,
+    /// (since, env steps, critic updates) at the start of the rates' window.
+    window: (Instant, u64, u64),
+    /// (critic updates, env steps) per second over the last window.
+    rates: (f64, f64),
+    /// When the budget was reached (the final evaluations are waited for).
+    finishing_since: Option<Instant>,
+}
+
+impl Pass {
+    fn new(inserted: u64, critic_updates: u64) -> Self {
+        Self {
+            trained_last: false,
+            last_control: None,
+            ranking_version: u64::MAX,
+            last_progress: Instant::now(),
+            last_live: Instant::now(),
+            last_connect: Instant::now(),
+            last_gone_check: Instant::now(),
+            window: (Instant::now(), inserted, critic_updates),
+            rates: (0.0, 0.0),
+            finishing_since: None,
+        }
+    }
+
+    /// The rates over the window, which restarts once it is a second or longer.
+    fn rates(&mut self, inserted: u64, critic_updates: u64) -> (f64, f64) {
+        let dt = self.window.0.elapsed().as_secs_f64();
+        if dt >= 1.0 {
+            self.rates = (
+                (critic_updates - self.window.2) as f64 / dt,
+                (inserted - self.window.1) as f64 / dt,
+            );
+            self.window = (Instant::now(), inserted, critic_updates);
+        }
+        self.rates
+    }
 }
 
 impl Learner {
@@ -114,11 +319,9 @@ impl Learner {
         check_matmul(cfg.algo.critic_matmul, device)?;
         let mut replay =
             ReplayBuffer::new(cfg.algo.replay_capacity, spec.obs_dim, spec.act_dim, device);
-        let warmup_total = cfg.warmup_per_actor() * k as u64;
         crate::config::create_run_dir(run_dir, cfg.run.dir_mode)
             .and_then(|()| std::fs::create_dir_all(run_dir.join("checkpoints")))
             .with_context(|| format!("creating {}", run_dir.display()))?;
-        let metrics_path = run_dir.join("metrics.csv");
         let resumed = match resume {
             Some(dir) => {
                 let state = checkpoint::load(dir, &mut selkd, &mut replay)
@@ -133,48 +336,14 @@ impl Learner {
             }
             None => None,
         };
-        let eval_epoch = resumed.as_ref().map_or(0, |s| s.eval_epoch);
-        // Epochs whose row was written when the checkpoint was taken; the evaluation of any later
-        // epoch was in flight and is asked for again.
-        let epochs_logged = resumed
-            .as_ref()
-            .map_or(0, |s| s.epochs_logged.unwrap_or(s.eval_epoch));
-        if resumed.is_some() && metrics_path.exists() {
-            // Rows written after the checkpoint (by the run that was stopped or killed) are
-            // written again by this one: drop them so each epoch has one row.
-            truncate_metrics(&metrics_path, epochs_logged)?;
-        }
-        let fresh_metrics = resume.is_none() || !metrics_path.exists();
-        let mut metrics = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&metrics_path)
-            .with_context(|| format!("opening {}", metrics_path.display()))?;
-        if fresh_metrics {
-            writeln!(metrics, "{}", MetricsRow::header(k))?;
-        }
+        let resumed = resumed.as_ref();
+        let epochs = Epochs::from_resumed(resumed, k);
+        let metrics = Outputs::open_metrics(run_dir, resumed.is_some(), epochs.epochs_logged, k)?;
+        let stats = Stats::from_resumed(resumed);
+        let limiter = rate_limiter(&cfg, resumed.is_some() && replay.is_empty(), &stats, &selkd);
         let every = cfg.run.checkpoint_every;
-        let inserted = resumed.as_ref().map_or(0, |s| s.inserted);
-        let mut limiter = RateLimiter::new(
-            k,
-            cfg.algo.utd,
-            warmup_total,
-            cfg.asynchronous.ratio_tolerance,
-        );
-        if resumed.is_some() && replay.is_empty() {
-            // Nothing to sample from: training waits for another warm-up's worth of data.
-            limiter.refill(inserted, selkd.actor_updates);
-            let why = if cfg.run.checkpoint_replay {
-                "its replay.safetensors is missing although run.checkpoint_replay = true"
-            } else {
-                "run.checkpoint_replay = false"
-            };
-            tracing::warn!("the checkpoint holds no replay buffer ({why}): training resumes once {} new transitions (a warm-up's worth, from the current policies) refill it", limiter.warmup_end() - inserted);
-        }
         Ok(Self {
-            spec: spec.clone(),
-            limiter,
-            ranking: resumed.as_ref().map_or_else(
+            ranking: resumed.map_or_else(
                 || Ranking::new(k, cfg.eval.score_window),
                 |s| s.ranking.clone(),
             ),
@@ -182,65 +351,17 @@ impl Learner {
                 obs_dim: spec.obs_dim,
                 act_dim: spec.act_dim,
             },
+            spec,
+            limiter,
             k,
-            rollouts: resumed
-                .as_ref()
-                .map_or_else(|| vec![Rollout::default(); k], |s| s.rollouts()),
-            accepting: vec![None; k],
-            cursor_due: vec![None; k],
-            watchdog: Watchdog::new(
-                k,
-                Duration::from_secs_f64(cfg.run.worker_timeout),
-                Instant::now(),
-            ),
-            granted: resumed.as_ref().map_or_else(
-                || vec![0; k],
-                |s| s.rollouts().iter().map(|r| r.sent).collect(),
-            ),
-            last_heard: vec![Instant::now(); k],
-            benched: vec![false; k],
-            grant_turn: 0,
-            inserted,
-            lockstep_rounds: resumed.as_ref().map_or(0, |s| s.lockstep_rounds),
-            weights_version: resumed.as_ref().map_or(1, |s| s.weights_version),
-            eval_epoch,
-            epoch_ends: resumed
-                .as_ref()
-                .map_or_else(VecDeque::new, |s| s.epoch_ends.iter().copied().collect()),
-            eval_reported: vec![epochs_logged; k],
-            eval_success: vec![(0, f64::NAN); k],
-            pending: match resumed.as_ref().filter(|s| s.pending.len() == k) {
-                Some(s) => s
-                    .pending
-                    .iter()
-                    .map(|q| q.iter().cloned().collect())
-                    .collect(),
-                None => (0..k).map(|_| VecDeque::new()).collect(),
-            },
-            intake: resumed.as_ref().map_or_else(Intake::default, |s| {
-                Intake::restore(s.dropped, s.policy_lag)
-            }),
-            last_stats: resumed
-                .as_ref()
-                .and_then(|s| s.last_round.as_ref())
-                .map_or_else(RoundStats::default, RoundStats::from),
-            epochs_logged,
-            next_checkpoint: inserted.checked_div(every).map_or(0, |n| (n + 1) * every),
-            started: Instant::now(),
-            wall_offset: resumed.as_ref().map_or(0.0, |s| s.wall_seconds),
-            metrics,
-            tb: EventWriter::create(&run_dir.join("tb"), inserted)
-                .map_err(|e| tracing::warn!("no TensorBoard events for this run: {e:#}"))
-                .ok(),
-            run_dir: run_dir.to_path_buf(),
+            workers: Workers::new(k, Duration::from_secs_f64(cfg.run.worker_timeout), resumed),
+            epochs,
+            out: Outputs::new(run_dir, metrics, stats.inserted, every, resumed),
+            stats,
             selkd,
             replay,
             cfg,
         })
-    }
-
-    fn wall(&self) -> f64 {
-        self.wall_offset + self.started.elapsed().as_secs_f64()
     }
 
     /// Runs until the budget is reached or `stop` is raised.
@@ -248,37 +369,19 @@ impl Learner {
         clean_half_made_nodes();
         let node = services::node(&proto::learner_node_name(run_id))
             .map_err(|e| anyhow!("starting the iceoryx2 node: {e}"))?;
-        let k = self.k;
         let ports = LearnerPorts::open(
             &node,
             &Services::new(run_id),
-            k,
+            self.k,
             self.selkd.actor_weights(0).len(),
         )
         .map_err(|e| anyhow!("{e}"))?;
-        let publish_weights = |s: &Selkd, version: u64| {
-            ports
-                .publish_weights(version, |i| s.actor_weights(i))
-                .map_err(|e| anyhow!("publishing weights: {e}"))
-        };
-        publish_weights(&self.selkd, self.weights_version)?;
-        let mut last_control = None;
-        let mut ranking_version = u64::MAX;
-        let mut last_progress = Instant::now();
-        let mut last_live = Instant::now();
-        let mut last_connect = Instant::now();
-        let mut window = (Instant::now(), self.inserted, self.selkd.critic_updates);
-        let mut rates = (0.0, 0.0);
-        let mut finishing_since: Option<Instant> = None;
-        let mut outcome = Outcome::Finished;
-        let mut trained_last = false;
-        let mut last_gone_check = Instant::now();
-
-        loop {
+        self.publish_weights(&ports)?;
+        let mut pass = Pass::new(self.stats.inserted, self.selkd.critic_updates);
+        let outcome = loop {
             // Wake on any worker message (or every 50 ms to keep progress, checkpoints and stop
             // handling responsive).
-            // A pass that trained does not wait: more rounds may be due.
-            if !trained_last {
+            if !pass.trained_last {
                 selkd_protocol::wait_for_wake(&ports.wake, Duration::from_millis(50))?;
             }
             while let Some(r) = ports.reports.receive()? {
@@ -287,131 +390,141 @@ impl Learner {
             while let Some(t) = ports.transitions.receive()? {
                 self.on_transition(*t.user_header(), t.payload());
             }
-            // A worker that said hello gets its cursor once every transition of its predecessor
-            // that arrived is counted; the predecessor's later ones (if it still lives) are not.
-            for w in 0..k {
-                if let Some(incarnation) = self.cursor_due[w].take() {
-                    let r = &self.rollouts[w];
-                    let cursor = proto::CursorHeader {
-                        worker: w as u32,
-                        incarnation,
-                        sent: r.sent,
-                        episode: r.episode,
-                        step: r.step,
-                    };
-                    ports
-                        .send_cursor(cursor, &r.actions)
-                        .map_err(|e| anyhow!("sending worker {w}'s cursor: {e}"))?;
-                    self.accepting[w] = Some(incarnation);
-                }
-            }
+            self.workers.send_due_cursors(&ports)?;
             let trained = match self.cfg.run.mode {
                 Mode::Sync => self.advance_sync()?,
                 Mode::Async => self.advance_async()?,
             };
             if trained {
-                publish_weights(&self.selkd, self.weights_version)?;
+                self.publish_weights(&ports)?;
             }
-            trained_last = trained;
+            pass.trained_last = trained;
             self.log_epochs()?;
-            if self.cfg.run.checkpoint_every > 0
-                && self.inserted >= self.next_checkpoint
-                && self.inserted < self.cfg.run.total_env_steps
-            {
-                // A periodic checkpoint that fails (a full disk) is not the end of the run: the
-                // next one tries again. Only the final one must succeed.
-                if let Err(e) = self.checkpoint(&format!("step-{}", self.inserted)) {
-                    if e.downcast_ref::<checkpoint::NonFinite>().is_some() {
-                        return Err(e.context(format!("at {} env steps", self.inserted)));
-                    }
-                    tracing::error!("checkpoint at {} env steps failed: {e:#}; training goes on, the next checkpoint tries again", self.inserted);
-                }
-                self.next_checkpoint += self.cfg.run.checkpoint_every;
-            }
-            let budget_reached = self.inserted >= self.cfg.run.total_env_steps;
-            let evals_in = self.eval_reported.iter().all(|&e| e >= self.eval_epoch);
+            self.periodic_checkpoint()?;
             let interrupted = stop.load(Ordering::Relaxed);
-            if budget_reached && finishing_since.is_none() {
-                finishing_since = Some(Instant::now());
+            let done = self.finished(&mut pass.finishing_since) || interrupted;
+            if self.cfg.run.mode == Mode::Async && pass.last_gone_check.elapsed() >= GONE_CHECK {
+                pass.last_gone_check = Instant::now();
+                self.workers.take_back_grants_of_gone_workers(run_id);
             }
-            // At the end, wait (a bounded time) for the final evaluations so the last epoch is scored.
-            let done = interrupted
-                || (budget_reached
-                    && (evals_in
-                        || finishing_since
-                            .is_some_and(|t| t.elapsed() > Duration::from_secs(120))));
-            if self.cfg.run.mode == Mode::Async && last_gone_check.elapsed() >= GONE_CHECK {
-                last_gone_check = Instant::now();
-                self.take_back_grants_of_gone_workers(run_id);
-            }
-            let control = self.control(done);
-            self.watch(&control);
-            if last_control
-                .as_ref()
-                .map(|c: &Control| !same_control(c, &control))
-                .unwrap_or(true)
-            {
-                ports.control.send_copy(control)?;
-                ports.to_workers.notify()?;
-                last_control = Some(control);
-            }
-            // Late (or restarted) subscribers get the latest control, ranking and weights from the
-            // publishers' history only once the publisher looks for new connections.
-            if last_connect.elapsed() >= Duration::from_millis(50) {
-                last_connect = Instant::now();
-                ports
-                    .connect_latecomers()
-                    .map_err(|e| anyhow!("connecting late workers: {e}"))?;
-            }
-            if self.ranking.version != ranking_version {
-                ranking_version = self.ranking.version;
-                ports.ranking.send_copy(self.ranking_message())?;
-            }
-            if last_progress.elapsed() >= Duration::from_secs(1) || done {
-                let dt = window.0.elapsed().as_secs_f64();
-                if dt >= 1.0 {
-                    rates = (
-                        (self.selkd.critic_updates - window.2) as f64 / dt,
-                        (self.inserted - window.1) as f64 / dt,
-                    );
-                    window = (Instant::now(), self.inserted, self.selkd.critic_updates);
-                }
-                self.progress(rates);
-                if last_live.elapsed() >= Duration::from_secs(5) || done {
-                    self.live_scalars(rates);
-                    last_live = Instant::now();
-                }
-                last_progress = Instant::now();
-            }
+            self.broadcast(&ports, &mut pass, done)?;
+            self.report_progress(&mut pass, done);
             if done {
-                if interrupted {
-                    outcome = Outcome::Interrupted;
-                }
-                break;
+                break if interrupted {
+                    Outcome::Interrupted
+                } else {
+                    Outcome::Finished
+                };
             }
+        };
+        self.finish(outcome)
+    }
+
+    fn publish_weights(&self, ports: &LearnerPorts) -> Result<()> {
+        ports
+            .publish_weights(self.stats.weights_version, |i| self.selkd.actor_weights(i))
+            .map_err(|e| anyhow!("publishing weights: {e}"))
+    }
+
+    /// A periodic checkpoint that fails (a full disk) is not the end of the run: the next one
+    /// tries again. Only the final one must succeed, and non-finite weights end the run.
+    fn periodic_checkpoint(&mut self) -> Result<()> {
+        let inserted = self.stats.inserted;
+        if self.cfg.run.checkpoint_every > 0
+            && inserted >= self.out.next_checkpoint
+            && inserted < self.cfg.run.total_env_steps
+        {
+            if let Err(e) = self.checkpoint(&format!("step-{inserted}")) {
+                if e.downcast_ref::<checkpoint::NonFinite>().is_some() {
+                    return Err(e.context(format!("at {inserted} env steps")));
+                }
+                tracing::error!("checkpoint at {inserted} env steps failed: {e:#}; training goes on, the next checkpoint tries again");
+            }
+            self.out.next_checkpoint += self.cfg.run.checkpoint_every;
         }
+        Ok(())
+    }
+
+    /// Whether the budget is reached and the final evaluations are in, so the last epoch is
+    /// scored; they are waited for a bounded time (from `finishing_since`, set here).
+    fn finished(&self, finishing_since: &mut Option<Instant>) -> bool {
+        let budget_reached = self.stats.inserted >= self.cfg.run.total_env_steps;
+        if budget_reached && finishing_since.is_none() {
+            *finishing_since = Some(Instant::now());
+        }
+        budget_reached
+            && (self.epochs.evals_in()
+                || finishing_since.is_some_and(|t| t.elapsed() > Duration::from_secs(120)))
+    }
+
+    /// Sends the control when it changed (and reports workers the run waits on in vain), lets
+    /// late subscribers connect, and sends the ranking when it changed.
+    fn broadcast(&mut self, ports: &LearnerPorts, pass: &mut Pass, done: bool) -> Result<()> {
+        let control = self.control(done);
+        self.watch(&control);
+        if pass
+            .last_control
+            .as_ref()
+            .map(|c: &Control| !same_control(c, &control))
+            .unwrap_or(true)
+        {
+            ports.control.send_copy(control)?;
+            ports.to_workers.notify()?;
+            pass.last_control = Some(control);
+        }
+        // Late (or restarted) subscribers get the latest control, ranking and weights from the
+        // publishers' history only once the publisher looks for new connections.
+        if pass.last_connect.elapsed() >= Duration::from_millis(50) {
+            pass.last_connect = Instant::now();
+            ports
+                .connect_latecomers()
+                .map_err(|e| anyhow!("connecting late workers: {e}"))?;
+        }
+        if self.ranking.version != pass.ranking_version {
+            pass.ranking_version = self.ranking.version;
+            ports.ranking.send_copy(self.ranking_message())?;
+        }
+        Ok(())
+    }
+
+    /// The progress line every second and the `live/` scalars every 5 s (both at the end).
+    fn report_progress(&mut self, pass: &mut Pass, done: bool) {
+        if pass.last_progress.elapsed() >= Duration::from_secs(1) || done {
+            let rates = pass.rates(self.stats.inserted, self.selkd.critic_updates);
+            self.progress(rates);
+            if pass.last_live.elapsed() >= Duration::from_secs(5) || done {
+                self.live_scalars(rates);
+                pass.last_live = Instant::now();
+            }
+            pass.last_progress = Instant::now();
+        }
+    }
+
+    /// After the loop: the last rows and the final checkpoint, which must be written (or the
+    /// error names the latest complete one to resume from).
+    fn finish(&mut self, outcome: Outcome) -> Result<Outcome> {
         self.log_epochs()?;
         if let Err(e) = self.checkpoint("final") {
             if e.downcast_ref::<checkpoint::NonFinite>().is_some() {
                 return Err(e);
             }
-            let checkpoints = self.run_dir.join("checkpoints");
+            let checkpoints = self.out.run_dir.join("checkpoints");
             let latest = std::fs::read_to_string(checkpoints.join("latest"))
                 .map_or("none".to_string(), |n| {
                     checkpoints.join(n.trim()).display().to_string()
                 });
             return Err(e.context(format!(
                 "writing the final checkpoint (the latest complete one: {latest}; free space, then `selkd train --resume {}` continues from it)",
-                self.run_dir.display()
+                self.out.run_dir.display()
             )));
         }
         // Give workers a moment to read the stop order before the node (and its history) goes away.
         std::thread::sleep(Duration::from_millis(200));
         tracing::info!(
-            env_steps = self.inserted,
+            env_steps = self.stats.inserted,
             critic_updates = self.selkd.critic_updates,
-            dropped_nonfinite = self.intake.dropped_nonfinite,
-            dropped_stale = self.intake.dropped_stale,
+            dropped_nonfinite = self.stats.intake.dropped_nonfinite,
+            dropped_stale = self.stats.intake.dropped_stale,
             "learner done ({outcome:?})"
         );
         Ok(outcome)
@@ -426,27 +539,27 @@ impl Learner {
             );
             return;
         }
-        self.heard(w);
+        self.workers.heard(w);
         match r.kind {
             ReportKind::Hello => {
                 if let Err(e) = proto::check_peer(&self.handshake(), &r.handshake()) {
                     tracing::error!("worker {w}: {e}");
                     return;
                 }
-                if self.accepting[w] != Some(r.incarnation) && self.cursor_due[w].is_none() {
-                    let c = &self.rollouts[w];
+                if self.workers.accepting[w] != Some(r.incarnation)
+                    && self.workers.cursor_due[w].is_none()
+                {
+                    let c = &self.workers.rollouts[w];
                     tracing::info!(
                         "worker {w} joined (generation {}) holding weights version {}; learner at version {}; it continues at transition {} (episode {}, step {})",
-                        r.generation, r.weights_version, self.weights_version, c.sent, c.episode, c.step
+                        r.generation, r.weights_version, self.stats.weights_version, c.sent, c.episode, c.step
                     );
                 }
-                self.cursor_due[w] = Some(r.incarnation);
+                self.workers.cursor_due[w] = Some(r.incarnation);
             }
             ReportKind::Evaluation => {
-                if r.epoch > self.eval_reported[w] {
-                    self.eval_reported[w] = r.epoch;
+                if self.epochs.evaluation(w, r.epoch, r.success_rate) {
                     self.ranking.evaluation(w, r.epoch, r.mean_return);
-                    self.eval_success[w] = (r.epoch, r.success_rate);
                     tracing::debug!(
                         worker = w,
                         epoch = r.epoch,
@@ -465,36 +578,38 @@ impl Learner {
             || h.act_dim as usize != self.row.act_dim
             || row.len() != self.row.len()
         {
-            self.intake.dropped_malformed += 1;
-            if self.intake.dropped_malformed == 1 {
+            self.stats.intake.dropped_malformed += 1;
+            if self.stats.intake.dropped_malformed == 1 {
                 tracing::error!("dropped a transition that does not fit the run (worker {w}, obs {}, act {}, {} values); counting further ones", h.obs_dim, h.act_dim, row.len());
             }
             return;
         }
-        if self.accepting[w] != Some(h.incarnation) {
-            self.intake.dropped_stale += 1;
+        if self.workers.accepting[w] != Some(h.incarnation) {
+            self.stats.intake.dropped_stale += 1;
             tracing::warn!(
                 worker = w,
-                total = self.intake.dropped_stale,
+                total = self.stats.intake.dropped_stale,
                 "dropped a transition from a replaced process of worker {w} (generation {}); its successor sends that step itself",
                 h.generation
             );
             return;
         }
-        if self.cfg.run.mode == Mode::Async && self.rollouts[w].sent >= self.granted[w] {
+        if self.cfg.run.mode == Mode::Async
+            && self.workers.rollouts[w].sent >= self.workers.granted[w]
+        {
             // Beyond its grant: sent by a process whose grant was taken back as it died (the
             // run's total would be passed); its successor sends that step itself.
-            self.intake.dropped_stale += 1;
+            self.stats.intake.dropped_stale += 1;
             tracing::warn!(
                 worker = w,
-                total = self.intake.dropped_stale,
+                total = self.stats.intake.dropped_stale,
                 "dropped a transition of worker {w} beyond its grant; its successor sends that step itself"
             );
             return;
         }
-        self.heard(w);
+        self.workers.heard(w);
         let (_, action, _, _, terminated, truncated) = self.row.split(row);
-        if !self.rollouts[w].record(h.episode, h.step, action, terminated || truncated) {
+        if !self.workers.rollouts[w].record(h.episode, h.step, action, terminated || truncated) {
             tracing::error!(
                 worker = w,
                 "transition of episode {} step {} is not the next one on record; a restart of this worker will not continue it exactly",
@@ -504,8 +619,8 @@ impl Learner {
         }
         let finite = row.iter().all(|v| v.is_finite());
         if !finite {
-            self.intake.dropped_nonfinite += 1;
-            let dropped = self.intake.dropped_nonfinite;
+            self.stats.intake.dropped_nonfinite += 1;
+            let dropped = self.stats.intake.dropped_nonfinite;
             if dropped == 1 || dropped.is_power_of_two() {
                 tracing::warn!(
                     worker = w,
@@ -518,8 +633,9 @@ impl Learner {
             }
         }
         if h.policy_version > 0 {
-            self.intake
-                .policy_lag(self.weights_version.saturating_sub(h.policy_version));
+            self.stats
+                .intake
+                .policy_lag(self.stats.weights_version.saturating_sub(h.policy_version));
         }
         let p = Pending {
             worker: w,
@@ -527,76 +643,33 @@ impl Learner {
             row: finite.then(|| row.to_vec()),
         };
         match self.cfg.run.mode {
-            Mode::Sync => self.pending[w].push_back(p),
+            Mode::Sync => self.workers.pending[w].push_back(p),
             Mode::Async => self.store(p),
-        }
-    }
-
-    fn heard(&mut self, w: usize) {
-        let now = Instant::now();
-        self.watchdog.heard(w, now);
-        self.last_heard[w] = now;
-        self.benched[w] = false;
-    }
-
-    /// Async: a worker that holds an unused grant, has been quiet for `QUIET` and has no live
-    /// iceoryx2 node is gone (killed; the launcher restarts it after a back-off): its grant goes
-    /// back to the pool, so the others can finish the run without waiting for its successor.
-    /// A stopped (SIGSTOP) or busy worker's node is alive: its grant stays, and the others
-    /// still take its share of the allowance.
-    fn take_back_grants_of_gone_workers(&mut self, run_id: &str) {
-        let quiet: Vec<usize> = (0..self.k)
-            .filter(|&w| {
-                // Only a worker that had joined: one still starting has no node yet.
-                self.accepting[w].is_some()
-                    && !self.benched[w]
-                    && self.granted[w] > self.rollouts[w].sent
-                    && self.last_heard[w].elapsed() >= QUIET
-            })
-            .collect();
-        if quiet.is_empty() {
-            return;
-        }
-        let alive = match live_workers(run_id, self.k) {
-            Ok(a) => a,
-            Err(e) => {
-                tracing::warn!("{e:#}; grants of gone workers stay theirs");
-                return;
-            }
-        };
-        for w in quiet.into_iter().filter(|&w| !alive[w]) {
-            tracing::info!(
-                worker = w,
-                "worker {w} is gone with {} env steps of its grant unused; they go to the other workers",
-                self.granted[w] - self.rollouts[w].sent
-            );
-            self.granted[w] = self.rollouts[w].sent;
-            self.benched[w] = true;
         }
     }
 
     fn store(&mut self, p: Pending) {
         if let Some(row) = &p.row {
             let (s, a, r, s2, terminated, _truncated) = self.row.split(row);
-            match self.selkd.held_out(self.inserted + 1) {
+            match self.selkd.held_out(self.stats.inserted + 1) {
                 Some(validation) => validation.push(s, a, r, s2, terminated),
                 None => self.replay.push(s, a, r, s2, terminated),
             }
         }
-        self.inserted += 1;
+        self.stats.inserted += 1;
         if let Some(episode_return) = p.episode_return {
             self.ranking.training_episode(p.worker, episode_return);
         }
-        let epoch = self.inserted / self.cfg.eval.epoch_env_steps;
-        if epoch > self.eval_epoch {
-            self.eval_epoch = epoch;
+        let epoch = self.stats.inserted / self.cfg.eval.epoch_env_steps;
+        if epoch > self.epochs.eval_epoch {
+            self.epochs.eval_epoch = epoch;
             // Sync: the evaluation runs after this round (rounds store K steps), so the epoch ends
             // at the round's end; async: now.
             let end = match self.cfg.run.mode {
-                Mode::Sync => self.inserted.div_ceil(self.k as u64) * self.k as u64,
-                Mode::Async => self.inserted,
+                Mode::Sync => self.stats.inserted.div_ceil(self.k as u64) * self.k as u64,
+                Mode::Async => self.stats.inserted,
             };
-            self.epoch_ends.push_back((epoch, end));
+            self.epochs.epoch_ends.push_back((epoch, end));
         }
     }
 
@@ -605,7 +678,7 @@ impl Learner {
     fn advance_sync(&mut self) -> Result<bool> {
         let mut trained = false;
         loop {
-            let evals_in = self.eval_reported.iter().all(|&e| e >= self.eval_epoch);
+            let evals_in = self.epochs.evals_in();
             if evals_in {
                 // An epoch's row records the learner as it was when the epoch ended: write it
                 // before the next round, whose transitions may already be waiting (otherwise the
@@ -613,17 +686,19 @@ impl Learner {
                 self.log_epochs()?;
             }
             if !evals_in
-                || self.pending.iter().any(|q| q.is_empty())
-                || self.inserted >= self.cfg.run.total_env_steps
+                || self.workers.pending.iter().any(|q| q.is_empty())
+                || self.stats.inserted >= self.cfg.run.total_env_steps
             {
                 return Ok(trained);
             }
             for w in 0..self.k {
-                let p = self.pending[w].pop_front().expect("checked non-empty");
+                let p = self.workers.pending[w]
+                    .pop_front()
+                    .expect("checked non-empty");
                 self.store(p);
             }
-            self.lockstep_rounds += 1;
-            if self.limiter.warmed_up(self.inserted) {
+            self.stats.lockstep_rounds += 1;
+            if self.limiter.warmed_up(self.stats.inserted) {
                 self.train_round()?;
                 trained = true;
                 // Hand the new weights out before the next round (the caller publishes them).
@@ -636,7 +711,7 @@ impl Learner {
     /// it). One round per pass means the new weights and control go out before the next round, so
     /// a worker's behaviour policy trails by at most `max_policy_lag` plus the round in flight.
     fn advance_async(&mut self) -> Result<bool> {
-        if self.selkd.actor_updates < self.limiter.rounds_due(self.inserted) {
+        if self.selkd.actor_updates < self.limiter.rounds_due(self.stats.inserted) {
             self.train_round()?;
             return Ok(true);
         }
@@ -647,8 +722,8 @@ impl Learner {
     /// the weights are published or checkpointed, so the last checkpoint stays a good one.
     fn train_round(&mut self) -> Result<()> {
         let best = self.ranking.best();
-        self.last_stats = self.selkd.train_round(&mut self.replay, best);
-        let st = &self.last_stats;
+        self.stats.last_round = self.selkd.train_round(&mut self.replay, best);
+        let st = &self.stats.last_round;
         if !st.critic_loss.is_finite()
             || !st.q_mean.is_finite()
             || st.actor_loss.iter().any(|v| !v.is_finite())
@@ -656,12 +731,12 @@ impl Learner {
             bail!(
                 "training diverged in round {} ({} env steps): critic loss {}, actor losses {:?}; nothing after the last checkpoint is kept (lower algo.lr, or check the env's rewards)",
                 self.selkd.actor_updates,
-                self.inserted,
+                self.stats.inserted,
                 st.critic_loss,
                 st.actor_loss
             );
         }
-        self.weights_version += 1;
+        self.stats.weights_version += 1;
         Ok(())
     }
 
@@ -685,7 +760,7 @@ impl Learner {
                 // Warm-up (or refill) steps need no new weights: grant them at once; then one
                 // step per round.
                 let b = (self.limiter.warmup_end() / self.k as u64)
-                    .max(self.lockstep_rounds + 1)
+                    .max(self.stats.lockstep_rounds + 1)
                     .min(per_actor_cap);
                 budget[..self.k].iter_mut().for_each(|x| *x = b);
             }
@@ -694,24 +769,11 @@ impl Learner {
                 // goes to the others, within the limiter's allowance and the run's total.
                 let allowance = self
                     .limiter
-                    .insert_allowance(self.inserted, self.selkd.actor_updates);
-                let sent: Vec<u64> = self.rollouts.iter().map(|r| r.sent).collect();
-                let takers: Vec<bool> = (0..self.k)
-                    .map(|w| {
-                        !self.benched[w]
-                            && (self.granted[w] <= sent[w] || self.last_heard[w].elapsed() < QUIET)
-                    })
-                    .collect();
-                crate::rate_limit::top_up(
-                    &mut self.granted,
-                    &sent,
-                    &takers,
-                    allowance,
-                    self.cfg.run.total_env_steps,
-                    self.grant_turn,
-                );
-                self.grant_turn = (self.grant_turn + 1) % self.k;
-                budget[..self.k].copy_from_slice(&self.granted);
+                    .insert_allowance(self.stats.inserted, self.selkd.actor_updates);
+                let granted = self
+                    .workers
+                    .top_up_grants(allowance, self.cfg.run.total_env_steps);
+                budget[..self.k].copy_from_slice(granted);
             }
         }
         let mut hidden = [0u32; MAX_HIDDEN_LAYERS];
@@ -729,12 +791,12 @@ impl Learner {
             hidden,
             hidden_layers: self.cfg.algo.hidden.len() as u32,
             warmup_steps: self.cfg.warmup_per_actor(),
-            weights_version: self.weights_version,
+            weights_version: self.stats.weights_version,
             max_policy_lag: match self.cfg.run.mode {
                 Mode::Sync => 0,
                 Mode::Async => self.cfg.asynchronous.max_policy_lag,
             },
-            eval_epoch: self.eval_epoch,
+            eval_epoch: self.epochs.eval_epoch,
             eval_episodes: self.cfg.eval.episodes as u32,
             exploration_noise: match self.cfg.algo.backbone {
                 crate::config::Backbone::Sac => 0.0,
@@ -750,13 +812,13 @@ impl Learner {
     fn watch(&mut self, control: &Control) {
         let owes: Vec<bool> = (0..self.k)
             .map(|w| {
-                let owes_step = self.rollouts[w].sent < control.budget[w]
-                    && (self.cfg.run.mode == Mode::Async || self.pending[w].is_empty());
-                let owes_eval = self.eval_reported[w] < self.eval_epoch;
-                control.stop == 0 && (owes_step || owes_eval || self.accepting[w].is_none())
+                let owes_step = self.workers.rollouts[w].sent < control.budget[w]
+                    && (self.cfg.run.mode == Mode::Async || self.workers.pending[w].is_empty());
+                let owes_eval = self.epochs.eval_reported[w] < self.epochs.eval_epoch;
+                control.stop == 0 && (owes_step || owes_eval || self.workers.accepting[w].is_none())
             })
             .collect();
-        for (w, silent) in self.watchdog.late(&owes, Instant::now()) {
+        for (w, silent) in self.workers.watchdog.late(&owes, Instant::now()) {
             tracing::warn!(
                 "worker {w} has sent nothing for {:.0} s while the run waits on it (run.worker_timeout = {}); it is hung or stopped: restart it",
                 silent.as_secs_f64(),
@@ -770,27 +832,11 @@ impl Learner {
 
     /// The latest round's numbers in TensorBoard (`live/`), every few seconds.
     fn live_scalars(&mut self, rates: (f64, f64)) {
-        if self.tb.is_none() {
+        if self.out.tb.is_none() {
             return;
         }
-        let values = metrics::live_scalars(&self.last_stats, rates, self.selkd.selection());
-        self.write_scalars(self.inserted, &values);
-    }
-
-    /// Writes `values` at `step` and flushes; after a failed write (a full disk) the run goes on
-    /// without TensorBoard events.
-    fn write_scalars(&mut self, step: u64, values: &[(String, f64)]) {
-        let Some(tb) = self.tb.as_mut() else {
-            return;
-        };
-        let written: Result<()> = values
-            .iter()
-            .try_for_each(|(tag, v)| tb.scalar(tag, step, *v))
-            .and_then(|()| tb.flush());
-        if let Err(e) = written {
-            tracing::warn!("TensorBoard events stop here: {e:#}");
-            self.tb = None;
-        }
+        let values = metrics::live_scalars(&self.stats.last_round, rates, self.selkd.selection());
+        self.out.write_scalars(self.stats.inserted, &values);
     }
 
     fn ranking_message(&self) -> proto::Ranking {
@@ -808,20 +854,22 @@ impl Learner {
 
     /// One `PROGRESS {json}` line on stdout per second: the launcher draws its progress line from it.
     fn progress(&self, (updates_per_s, env_steps_per_s): (f64, f64)) {
-        let (updates_per_transition, target_updates_per_transition) =
-            self.limiter.ratio(self.selkd.critic_updates, self.inserted);
+        let (updates_per_transition, target_updates_per_transition) = self
+            .limiter
+            .ratio(self.selkd.critic_updates, self.stats.inserted);
         let progress = Progress {
             best: self.ranking.best(),
             critic_updates: self.selkd.critic_updates,
-            dropped_malformed: self.intake.dropped_malformed,
-            dropped_nonfinite: self.intake.dropped_nonfinite,
-            dropped_stale: self.intake.dropped_stale,
-            env_steps: self.inserted,
+            dropped_malformed: self.stats.intake.dropped_malformed,
+            dropped_nonfinite: self.stats.intake.dropped_nonfinite,
+            dropped_stale: self.stats.intake.dropped_stale,
+            env_steps: self.stats.inserted,
             env_steps_per_s,
-            policy_lag_max: self.intake.lag_max,
-            policy_lag_mean: self.intake.policy_lag_mean(),
+            policy_lag_max: self.stats.intake.lag_max,
+            policy_lag_mean: self.stats.intake.policy_lag_mean(),
             scores: self.ranking.scores(),
             success: self
+                .epochs
                 .eval_success
                 .iter()
                 .map(|&(_, rate)| rate.is_finite().then_some(rate))
@@ -830,8 +878,8 @@ impl Learner {
             total_env_steps: self.cfg.run.total_env_steps,
             updates_per_s,
             updates_per_transition,
-            wall_s: self.wall(),
-            weights_version: self.weights_version,
+            wall_s: self.out.wall(),
+            weights_version: self.stats.weights_version,
         };
         // The launcher may be gone (its stdout closed): progress is best effort, never a panic.
         let mut out = std::io::stdout().lock();
@@ -840,22 +888,12 @@ impl Learner {
 
     /// One metrics row per epoch whose evaluations are all in.
     fn log_epochs(&mut self) -> Result<()> {
-        let complete = *self.eval_reported.iter().min().unwrap_or(&0);
-        while self.epochs_logged < complete.min(self.eval_epoch) {
-            self.epochs_logged += 1;
-            let e = self.epochs_logged;
-            while self.epoch_ends.front().is_some_and(|&(epoch, _)| epoch < e) {
-                self.epoch_ends.pop_front();
-            }
-            let env_steps = match self.epoch_ends.front() {
-                Some(&(epoch, steps)) if epoch == e => steps,
-                _ => e * self.cfg.eval.epoch_env_steps,
-            };
+        while let Some((e, env_steps)) = self.epochs.next_to_log(self.cfg.eval.epoch_env_steps) {
             let row = self.metrics_row(e, env_steps);
-            writeln!(self.metrics, "{}", row.csv())?;
-            self.metrics.flush()?;
-            if self.tb.is_some() {
-                self.write_scalars(env_steps, &row.scalars());
+            writeln!(self.out.metrics, "{}", row.csv())?;
+            self.out.metrics.flush()?;
+            if self.out.tb.is_some() {
+                self.out.write_scalars(env_steps, &row.scalars());
             }
             tracing::info!(
                 epoch = e,
@@ -870,7 +908,7 @@ impl Learner {
 
     /// Epoch `epoch`'s row, ended at `env_steps`, as the learner stands now.
     fn metrics_row(&self, epoch: u64, env_steps: u64) -> MetricsRow {
-        let wall_s = self.wall();
+        let wall_s = self.out.wall();
         let score: Vec<f64> = self
             .ranking
             .scores()
@@ -890,6 +928,7 @@ impl Learner {
         // Tasks with a success criterion (the assembly task) report the evaluation's success
         // rate; others leave NaN.
         let eval_success = self
+            .epochs
             .eval_success
             .iter()
             .map(|&(e, rate)| if e >= epoch { rate } else { f64::NAN })
@@ -902,14 +941,14 @@ impl Learner {
                 vec![f64::NAN; self.k]
             }
         };
-        let stats = &self.last_stats;
+        let stats = &self.stats.last_round;
         MetricsRow {
             epoch,
             env_steps,
             wall_s,
             critic_updates: self.selkd.critic_updates,
             updates_per_s: self.selkd.critic_updates as f64 / wall_s.max(1e-9),
-            env_steps_per_s: self.inserted as f64 / wall_s.max(1e-9),
+            env_steps_per_s: self.stats.inserted as f64 / wall_s.max(1e-9),
             critic_loss: stats.critic_loss,
             q_mean: stats.q_mean,
             best: self.ranking.best(),
@@ -917,15 +956,15 @@ impl Learner {
             score,
             alpha: per_actor(&stats.alpha),
             kl_to_best: per_actor(&stats.kl_to_best),
-            policy_lag_mean: self.intake.policy_lag_mean(),
-            dropped: self.intake.dropped(),
+            policy_lag_mean: self.stats.intake.policy_lag_mean(),
+            dropped: self.stats.intake.dropped(),
             eval_success,
         }
     }
 
     fn checkpoint(&mut self, name: &str) -> Result<()> {
-        let dir = self.run_dir.join("checkpoints").join(name);
-        let (dropped, policy_lag) = self.intake.saved();
+        let dir = self.out.run_dir.join("checkpoints").join(name);
+        let (dropped, policy_lag) = self.stats.intake.saved();
         let state = TrainingState {
             config: self.cfg.clone(),
             rng: self.selkd.rng.clone(),
@@ -933,39 +972,40 @@ impl Learner {
             actor_updates: self.selkd.actor_updates,
             adam_steps: checkpoint::adam_steps(&self.selkd),
             critic_member_steps: self.selkd.critic_opt.member_steps.clone(),
-            received: self.rollouts.iter().map(|r| r.sent).collect(),
-            rollouts: self.rollouts.clone(),
-            last_round: Some((&self.last_stats).into()),
+            received: self.workers.rollouts.iter().map(|r| r.sent).collect(),
+            rollouts: self.workers.rollouts.clone(),
+            last_round: Some((&self.stats.last_round).into()),
             dropped,
             policy_lag,
             pending: self
+                .workers
                 .pending
                 .iter()
                 .map(|q| q.iter().cloned().collect())
                 .collect(),
-            inserted: self.inserted,
-            lockstep_rounds: self.lockstep_rounds,
-            weights_version: self.weights_version,
-            eval_epoch: self.eval_epoch,
-            epochs_logged: Some(self.epochs_logged),
-            epoch_ends: self.epoch_ends.iter().copied().collect(),
+            inserted: self.stats.inserted,
+            lockstep_rounds: self.stats.lockstep_rounds,
+            weights_version: self.stats.weights_version,
+            eval_epoch: self.epochs.eval_epoch,
+            epochs_logged: Some(self.epochs.epochs_logged),
+            epoch_ends: self.epochs.epoch_ends.iter().copied().collect(),
             ranking: self.ranking.clone(),
-            wall_seconds: self.wall(),
+            wall_seconds: self.out.wall(),
             selected_variant: self.selkd.selection().map_or(0, |(v, _)| v),
         };
         let replay = self.cfg.run.checkpoint_replay.then_some(&mut self.replay);
         checkpoint::save(&dir, &mut self.selkd, replay, &state)?;
         checkpoint::write_atomically(
-            &self.run_dir.join("checkpoints").join("latest"),
+            &self.out.run_dir.join("checkpoints").join("latest"),
             &format!("{name}\n"),
         )?;
         tracing::info!(
-            env_steps = self.inserted,
+            env_steps = self.stats.inserted,
             "checkpoint written to {}",
             dir.display()
         );
         prune_checkpoints(
-            &self.run_dir.join("checkpoints"),
+            &self.out.run_dir.join("checkpoints"),
             self.cfg.run.keep_checkpoints,
         );
         Ok(())
@@ -1011,30 +1051,27 @@ fn truncate_metrics(path: &Path, epochs: u64) -> Result<()> {
     checkpoint::write_atomically(path, &kept)
 }
 
-/// Async: a worker holding an unused grant that has sent nothing for this long is not a taker
-/// of new grants, and is looked for among the live iceoryx2 nodes (at most every `GONE_CHECK`).
-const QUIET: Duration = Duration::from_secs(1);
-const GONE_CHECK: Duration = Duration::from_millis(250);
-
-/// Per worker of this run, whether a live iceoryx2 node of its exists.
-fn live_workers(run_id: &str, k: usize) -> Result<Vec<bool>> {
-    use iceoryx2::node::{NodeState, NodeView};
-    use iceoryx2::prelude::{ipc, CallbackProgression, Config as IoxConfig, Node};
-    let names: Vec<String> = (0..k).map(|w| proto::worker_node_name(run_id, w)).collect();
-    let mut alive = vec![false; k];
-    Node::<ipc::Service>::list(IoxConfig::global_config(), |state| {
-        if let NodeState::Alive(view) = state {
-            if let Some(d) = view.details() {
-                let name = d.name().to_string();
-                if let Some(w) = names.iter().position(|n| *n == name) {
-                    alive[w] = true;
-                }
-            }
-        }
-        CallbackProgression::Continue
-    })
-    .map_err(|e| anyhow!("listing iceoryx2 nodes: {e:?}"))?;
-    Ok(alive)
+/// The rate limiter. A resumed run whose checkpoint holds no replay buffer (`without_replay`)
+/// has nothing to sample from: training waits for another warm-up's worth of data.
+fn rate_limiter(cfg: &Config, without_replay: bool, stats: &Stats, selkd: &Selkd) -> RateLimiter {
+    let k = cfg.algo.actors;
+    let warmup_total = cfg.warmup_per_actor() * k as u64;
+    let mut limiter = RateLimiter::new(
+        k,
+        cfg.algo.utd,
+        warmup_total,
+        cfg.asynchronous.ratio_tolerance,
+    );
+    if without_replay {
+        limiter.refill(stats.inserted, selkd.actor_updates);
+        let why = if cfg.run.checkpoint_replay {
+            "its replay.safetensors is missing although run.checkpoint_replay = true"
+        } else {
+            "run.checkpoint_replay = false"
+        };
+        tracing::warn!("the checkpoint holds no replay buffer ({why}): training resumes once {} new transitions (a warm-up's worth, from the current policies) refill it", limiter.warmup_end() - stats.inserted);
+    }
+    limiter
 }
 
 /// Removes node entries of processes killed while they made their node (iceoryx2 cannot), as
@@ -1112,8 +1149,8 @@ mod tests {
         cfg.run.mode = mode;
         cfg.algo.actors = 2;
         let mut l = Learner::new(cfg, &dir, None).unwrap();
-        l.accepting = vec![Some(7); 2];
-        l.granted = vec![u64::MAX; 2];
+        l.workers.accepting = vec![Some(7); 2];
+        l.workers.granted = vec![u64::MAX; 2];
         (l, dir)
     }
 
@@ -1143,7 +1180,10 @@ mod tests {
             l.on_transition(header(0), &good[..9]); // one value short
             l.on_transition(header(7), &good); // no such worker
             assert_eq!(
-                (l.intake.dropped_nonfinite, l.intake.dropped_malformed),
+                (
+                    l.stats.intake.dropped_nonfinite,
+                    l.stats.intake.dropped_malformed
+                ),
                 (2, 2)
             );
             // The dropped steps still count as the workers' steps (a lockstep round must not wait
@@ -1152,12 +1192,12 @@ mod tests {
             if mode == Mode::Sync {
                 l.advance_sync().unwrap(); // one round: actor 0's NaN step and actor 1's Inf step
                 assert_eq!(
-                    l.pending[1].len(),
+                    l.workers.pending[1].len(),
                     1,
                     "actor 1's good step waits for actor 0's next"
                 );
             }
-            assert_eq!(l.inserted, if mode == Mode::Sync { 2 } else { 3 });
+            assert_eq!(l.stats.inserted, if mode == Mode::Sync { 2 } else { 3 });
             l.replay.flush();
             let stored = if mode == Mode::Sync { 0 } else { 1 };
             assert_eq!(
@@ -1211,8 +1251,8 @@ mod tests {
         cfg.algo.warmup_steps = 1_000_000; // no training: only the split is under test
         cfg.validate().unwrap();
         let mut l = Learner::new(cfg, &dir, None).unwrap();
-        l.accepting = vec![Some(7)];
-        l.granted = vec![u64::MAX];
+        l.workers.accepting = vec![Some(7)];
+        l.workers.granted = vec![u64::MAX];
         // Transition t (1-based) carries t in its first observation entry.
         for t in 1..=40 {
             let row = [t as f32, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0];
@@ -1234,7 +1274,10 @@ mod tests {
             trained.iter().all(|t| !held.contains(t)),
             "a held-out transition is in the replay buffer: {trained:?}"
         );
-        assert_eq!(l.inserted, 40, "held-out transitions count as env steps");
+        assert_eq!(
+            l.stats.inserted, 40,
+            "held-out transitions count as env steps"
+        );
         let _ = std::fs::remove_dir_all(dir);
     }
 
@@ -1246,10 +1289,10 @@ mod tests {
         l.on_transition(header(1), &row(10.0));
         l.on_transition(header(1), &row(11.0));
         l.advance_sync().unwrap();
-        assert_eq!(l.inserted, 0);
+        assert_eq!(l.stats.inserted, 0);
         l.on_transition(header(0), &row(0.0));
         l.advance_sync().unwrap();
-        assert_eq!((l.inserted, l.lockstep_rounds), (2, 1));
+        assert_eq!((l.stats.inserted, l.stats.lockstep_rounds), (2, 1));
         let stored = Vec::<f32>::try_from(l.replay.export().select(1, 0)).unwrap();
         assert_eq!(stored, vec![0.0, 10.0], "actor 0's step, then actor 1's");
         let _ = std::fs::remove_dir_all(dir);
