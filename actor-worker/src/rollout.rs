@@ -204,4 +204,31 @@ mod tests {
         assert_eq!(episode_seed(7, 1, 3), 0x2987_660a_119a_9dd7);
         assert_eq!(mix(&[42, 2, 0, 5, 1]), 0x9c0a_7e7c_c937_82bc);
     }
+
+    /// A record whose actions end the episode when replayed (another env build, or an env that
+    /// does not repeat itself) must refuse the join, not go on from a finished episode.
+    #[test]
+    fn a_record_that_ends_its_episode_on_replay_is_refused() {
+        let env = || selkd_envs::make("hopper").unwrap();
+        let cursor = |step| CursorHeader {
+            worker: 0,
+            incarnation: 1,
+            sent: step,
+            episode: 0,
+            step,
+        };
+        // Full torque on every joint for 300 steps: the hopper falls long before.
+        let actions = vec![1.0f32; 300 * 3];
+        let err = Rollout::resume(env(), 0, 9, &cursor(300), &actions)
+            .err()
+            .expect("a replay that ends its episode must fail");
+        let why = err
+            .downcast_ref::<CannotJoin>()
+            .expect("CannotJoin")
+            .0
+            .clone();
+        assert!(why.contains("ended it at step"), "{why}");
+        // The first few of those steps are still inside the episode: resumed fine.
+        assert!(Rollout::resume(env(), 0, 9, &cursor(3), &actions[..9]).is_ok());
+    }
 }
