@@ -1,0 +1,52 @@
+#!/usr/bin/env bash
+# The end-to-end mutation reading of the process code (docs/mutants.md, "The process code against
+# the end-to-end tests"): cargo-mutants lists each file's mutants, deploy/mutants_e2e.py applies
+# them one at a time in this checkout, rebuilds the release binaries and runs the stages below.
+# Results go to docs/mutants/<crate>-<file>.csv (resumable: a mutant already there is skipped),
+# so a reading continued on another machine picks up where the committed data stops.
+#
+#   bash deploy/mutants-e2e.sh                                  # every file below (many hours)
+#   bash deploy/mutants-e2e.sh actor-worker/src/link.rs         # one file
+#
+# It mutates files in place and refuses to start with uncommitted changes in them; don't edit
+# the checkout while it runs. Each caught mutant takes about a minute on 2 cores, one that
+# reaches the last stage four to five.
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+cd "$root"
+bash deploy/setup.sh
+
+version=27.1.0
+cache=${SELKD_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/selkd}
+tool="$cache/cargo-mutants-$version"
+if [ ! -x "$tool/bin/cargo-mutants" ]; then
+  echo "mutants-e2e: installing cargo-mutants $version into $tool (one time, a few minutes)" >&2
+  cargo install --locked cargo-mutants --version "$version" --root "$tool"
+fi
+export PATH="$tool/bin:$PATH"
+
+files=("$@")
+[ ${#files[@]} -gt 0 ] || files=(actor-worker/src/rollout.rs actor-worker/src/link.rs
+  actor-worker/src/main.rs protocol/src/lib.rs learner/src/service.rs learner/src/workers.rs)
+
+e2e="cargo test --release -p selkd-tests"
+for f in "${files[@]}"; do
+  case "$f" in
+    actor-worker/*) pkg=selkd-actor-worker; build="cargo build --release -p selkd-actor-worker" ;;
+    learner/*) pkg=selkd-learner; build="cargo build --release -p selkd-learner --bin learner" ;;
+    protocol/*) pkg=selkd-protocol; build="cargo build --release --workspace --bins" ;;
+    *) echo "mutants-e2e: $f is not in actor-worker, learner or protocol" >&2; exit 2 ;;
+  esac
+  name=$(echo "$f" | sed 's#/src/#-#; s#\.rs$##; s#/#-#g')
+  list="target/mutants-e2e/$name.json"
+  mkdir -p target/mutants-e2e docs/mutants
+  # --package: listing the whole workspace runs out of memory. `Vec::leak`: cargo-mutants writes
+  # every combination of defaults for a function returning a tuple of slices (768 for one).
+  cargo mutants --in-place --list --json --diff --package "$pkg" --file "$f" \
+    --exclude-re 'Vec::leak' > "$list"
+  python3 deploy/mutants_e2e.py "$list" "docs/mutants/$name.csv" --build "$build" --timeout 900 \
+    --stage "$e2e --test data_path" \
+    --stage "cargo test --release -p $pkg" \
+    --stage "$e2e --test faults --test recovery -- --test-threads 1" \
+    --stage "$e2e --test gymnasium -- an_exception_in_step"
+done
