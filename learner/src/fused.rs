@@ -56,6 +56,9 @@ impl Elem for Bf16 {
 ///
 /// SAFETY: the caller makes sure that no two slices it holds at once that share storage are
 /// written, and that nothing else uses the storage meanwhile.
+// The slice borrows the tensor's storage, not the `Tensor` handle (a shared reference to that
+// storage, as libtorch's in-place operations take it); the aliasing rule is the caller's, above.
+#[allow(clippy::mut_from_ref)]
 unsafe fn elems<'a, T: Elem>(t: &'a Tensor, n: usize) -> Option<&'a mut [T]> {
     let fits =
         t.device() == Device::Cpu && t.kind() == T::KIND && t.is_contiguous() && t.numel() == n;
