@@ -50,6 +50,11 @@ pub struct RunArgs {
     /// Only this run, named <method>/<task>/seed-<s> (repeatable).
     #[arg(long, value_name = "METHOD/TASK/seed-S")]
     pub only: Vec<String>,
+    /// A published copy of this experiment (`selkd experiment publish`'s DEST, e.g.
+    /// docs/results/<experiment>): its runs not yet started here count as finished, so a new
+    /// machine runs only what is missing.
+    #[arg(long, value_name = "DEST")]
+    pub published: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]

@@ -125,3 +125,92 @@ pub fn run(args: &PublishArgs) -> Result<()> {
     }
     Ok(())
 }
+
+/// `selkd experiment run --published DEST`: puts back each run named in `ids` that DEST holds
+/// (published, hence finished) and `dir` has never started, as a finished run: its config,
+/// metrics, final checkpoint's state.json, fresh evaluation and progress. On a new machine (or
+/// a fresh clone) the experiment then runs only what is missing instead of redoing days of
+/// runs; a restored run has no weights, which nothing after training needs (its Table 2
+/// evaluation is published). The runner then checks each restored config against the
+/// experiment's, so a copy published under other settings is refused, not counted. Returns the
+/// restored run ids.
+pub fn restore(published: &Path, dir: &Path, ids: &[String]) -> Result<Vec<String>> {
+    if !published.is_dir() {
+        bail!(
+            "--published {}: no such directory (it is `selkd experiment publish`'s DEST, e.g. docs/results/<experiment>)",
+            published.display()
+        );
+    }
+    let mut restored = Vec::new();
+    for id in ids {
+        let (from, to) = (published.join(id), dir.join(id));
+        if !from.join("state.json").exists() || to.join("config.toml").exists() {
+            continue; // not published, or started here: this machine's run wins
+        }
+        let progress = [("logs/progress.jsonl", "progress.json")];
+        for (local, name) in FILES.iter().chain(&progress) {
+            let src = from.join(name);
+            if src.exists() {
+                let dst = to.join(local);
+                std::fs::create_dir_all(dst.parent().expect("a run file has a folder"))
+                    .with_context(|| format!("creating {}", to.display()))?;
+                copy(&src, &dst)?;
+            }
+        }
+        restored.push(id.clone());
+    }
+    Ok(restored)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::experiment::state::{state, State};
+
+    #[test]
+    fn restore_puts_back_published_runs_as_finished_and_leaves_local_ones() {
+        let tmp = std::env::temp_dir().join(format!("selkd-restore-{}", std::process::id()));
+        let (published, dir) = (tmp.join("published"), tmp.join("runs"));
+        let run = |root: &Path, id: &str, files: &[(&str, &str)]| {
+            for (name, text) in files {
+                let p = root.join(id).join(name);
+                std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+                std::fs::write(p, text).unwrap();
+            }
+        };
+        let state_json = "{\"inserted\": 1000}";
+        let published_files = [
+            ("config.toml", "published config"),
+            ("metrics.csv", "env_steps\n1000\n"),
+            ("state.json", state_json),
+            ("fresh_eval.json", "{}"),
+            ("progress.json", "{\"env_steps\": 1000}\n"),
+        ];
+        for id in ["sac/pendulum/seed-1", "sac/pendulum/seed-2", "redq/pendulum/seed-1"] {
+            run(&published, id, &published_files);
+        }
+        // seed 2 was started here: it stays as it is.
+        run(&dir, "sac/pendulum/seed-2", &[("config.toml", "local config")]);
+        let ids: Vec<String> = ["sac/pendulum/seed-1", "sac/pendulum/seed-2", "sac/pendulum/seed-3"]
+            .map(String::from)
+            .to_vec();
+
+        let restored = restore(&published, &dir, &ids).unwrap();
+        assert_eq!(restored, ["sac/pendulum/seed-1"]);
+        let one = dir.join("sac/pendulum/seed-1");
+        assert!(matches!(state(&one, 1000), State::Finished));
+        let read = |p: &str| std::fs::read_to_string(one.join(p)).unwrap();
+        assert_eq!(read("config.toml"), "published config");
+        assert_eq!(read("metrics.csv"), "env_steps\n1000\n");
+        assert_eq!(read("checkpoints/final/state.json"), state_json);
+        assert_eq!(read("fresh_eval.json"), "{}");
+        assert_eq!(read("logs/progress.jsonl"), "{\"env_steps\": 1000}\n");
+        let two = std::fs::read_to_string(dir.join("sac/pendulum/seed-2/config.toml")).unwrap();
+        assert_eq!(two, "local config");
+        assert!(!dir.join("redq").exists(), "a run the experiment does not name is not restored");
+        assert!(!dir.join("sac/pendulum/seed-3").exists());
+        let err = restore(&tmp.join("nowhere"), &dir, &ids).unwrap_err().to_string();
+        assert!(err.contains("--published") && err.contains("no such directory"), "{err}");
+        std::fs::remove_dir_all(&tmp).unwrap();
+    }
+}

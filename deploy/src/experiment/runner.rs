@@ -70,6 +70,15 @@ pub fn run(args: RunArgs) -> Result<i32> {
     if jobs == 0 {
         anyhow::bail!("--jobs 0: at least one run must be able to run; leave it out for one per core ({cores})");
     }
+    if let Some(published) = &args.published {
+        let ids = spec::Experiment::load(&args.experiment)?.run_ids();
+        let restored = super::publish::restore(published, &dir, &ids)?;
+        eprintln!(
+            "selkd: experiment: {} published run(s) put back from {} as finished",
+            restored.len(),
+            published.display()
+        );
+    }
     let (exp, runs) = spec::prepare(&args.experiment, &dir, cores, jobs, &args.only)?;
     super::write_experiment(&exp, &dir)?;
 
