@@ -186,14 +186,26 @@ mod tests {
             ("fresh_eval.json", "{}"),
             ("progress.json", "{\"env_steps\": 1000}\n"),
         ];
-        for id in ["sac/pendulum/seed-1", "sac/pendulum/seed-2", "redq/pendulum/seed-1"] {
+        for id in [
+            "sac/pendulum/seed-1",
+            "sac/pendulum/seed-2",
+            "redq/pendulum/seed-1",
+        ] {
             run(&published, id, &published_files);
         }
         // seed 2 was started here: it stays as it is.
-        run(&dir, "sac/pendulum/seed-2", &[("config.toml", "local config")]);
-        let ids: Vec<String> = ["sac/pendulum/seed-1", "sac/pendulum/seed-2", "sac/pendulum/seed-3"]
-            .map(String::from)
-            .to_vec();
+        run(
+            &dir,
+            "sac/pendulum/seed-2",
+            &[("config.toml", "local config")],
+        );
+        let ids: Vec<String> = [
+            "sac/pendulum/seed-1",
+            "sac/pendulum/seed-2",
+            "sac/pendulum/seed-3",
+        ]
+        .map(String::from)
+        .to_vec();
 
         let restored = restore(&published, &dir, &ids).unwrap();
         assert_eq!(restored, ["sac/pendulum/seed-1"]);
@@ -207,10 +219,18 @@ mod tests {
         assert_eq!(read("logs/progress.jsonl"), "{\"env_steps\": 1000}\n");
         let two = std::fs::read_to_string(dir.join("sac/pendulum/seed-2/config.toml")).unwrap();
         assert_eq!(two, "local config");
-        assert!(!dir.join("redq").exists(), "a run the experiment does not name is not restored");
+        assert!(
+            !dir.join("redq").exists(),
+            "a run the experiment does not name is not restored"
+        );
         assert!(!dir.join("sac/pendulum/seed-3").exists());
-        let err = restore(&tmp.join("nowhere"), &dir, &ids).unwrap_err().to_string();
-        assert!(err.contains("--published") && err.contains("no such directory"), "{err}");
+        let err = restore(&tmp.join("nowhere"), &dir, &ids)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("--published") && err.contains("no such directory"),
+            "{err}"
+        );
         std::fs::remove_dir_all(&tmp).unwrap();
     }
 }
