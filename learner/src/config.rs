@@ -140,15 +140,51 @@ pub enum Sharing {
     PerCritic,
 }
 
-/// The off-policy algorithm SELKD is built on (paper section 7.1).
+/// `algo.backbone` as a file names it; [`AlgoKeys::backbone`] adds TD3's own keys.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
 #[serde(rename_all = "kebab-case")]
+pub enum BackboneName {
+    Sac,
+    Td3,
+}
+
+/// The off-policy algorithm SELKD is built on (paper section 7.1), with the settings only it has.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Backbone {
     /// Stochastic tanh-Gaussian actors with entropy bonus; KD is the KL to the best actor.
     Sac,
     /// Deterministic actors with target actors and target policy smoothing; KD is the mean-squared
     /// action distance to the best actor; no temperature.
-    Td3,
+    Td3 {
+        /// Std of the Gaussian noise added to the workers' actions.
+        exploration_noise: f64,
+        /// Std of the target policy smoothing noise, and where it is clipped.
+        target_noise: f64,
+        target_noise_clip: f64,
+    },
+}
+
+impl Backbone {
+    /// TD3 with Fujimoto et al.'s noise (0.1; 0.2 clipped to ± 0.5), the keys' defaults.
+    pub const TD3: Backbone = Backbone::Td3 {
+        exploration_noise: 0.1,
+        target_noise: 0.2,
+        target_noise_clip: 0.5,
+    };
+
+    pub fn is_td3(&self) -> bool {
+        matches!(self, Backbone::Td3 { .. })
+    }
+
+    /// The std of the noise the workers add to their actions (none for SAC, which samples).
+    pub fn exploration_noise(&self) -> f64 {
+        match self {
+            Backbone::Sac => 0.0,
+            Backbone::Td3 {
+                exploration_noise, ..
+            } => *exploration_noise,
+        }
+    }
 }
 
 /// `[algo]` as written in a config file (and in every run's config.toml and checkpoint): flat
@@ -158,7 +194,7 @@ pub enum Backbone {
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct AlgoKeys {
-    pub backbone: Backbone,
+    pub backbone: BackboneName,
     /// TD3: std of the Gaussian exploration noise added to the workers' actions.
     pub exploration_noise: f64,
     /// TD3: std of the target policy smoothing noise, and where it is clipped.
@@ -232,12 +268,8 @@ pub struct AlgoKeys {
 pub struct AlgoConfig {
     /// SELKD, DNS, DPD or AVTD, with its own settings.
     pub method: Method,
+    /// SAC, or TD3 with its noise.
     pub backbone: Backbone,
-    /// TD3: std of the Gaussian exploration noise added to the workers' actions.
-    pub exploration_noise: f64,
-    /// TD3: std of the target policy smoothing noise, and where it is clipped.
-    pub target_noise: f64,
-    pub target_noise_clip: f64,
     /// K actors.
     pub actors: usize,
     /// N critics.
@@ -367,6 +399,18 @@ impl AlgoKeys {
     /// `trained_critics` DNS, and otherwise SELKD. A combination no method has is a one-line
     /// error; keys a method does not read (`target`, `sharing` and `aqe_drop` under DPD and
     /// AVTD, which have targets of their own) are left out of it, as they always were ignored.
+    /// The backbone, with TD3's noise keys when it is TD3 (SAC has none: they are ignored).
+    pub fn backbone(&self) -> Backbone {
+        match self.backbone {
+            BackboneName::Sac => Backbone::Sac,
+            BackboneName::Td3 => Backbone::Td3 {
+                exploration_noise: self.exploration_noise,
+                target_noise: self.target_noise,
+                target_noise_clip: self.target_noise_clip,
+            },
+        }
+    }
+
     pub fn method(&self) -> Result<Method, String> {
         let per_update = self.sharing == Sharing::PerUpdate;
         if self.paired_critics && !per_update {
@@ -496,10 +540,7 @@ impl TryFrom<AlgoKeys> for AlgoConfig {
     fn try_from(k: AlgoKeys) -> Result<Self, String> {
         Ok(AlgoConfig {
             method: k.method()?,
-            backbone: k.backbone,
-            exploration_noise: k.exploration_noise,
-            target_noise: k.target_noise,
-            target_noise_clip: k.target_noise_clip,
+            backbone: k.backbone(),
             actors: k.actors,
             critics: k.critics,
             subset: k.subset,
@@ -527,10 +568,7 @@ impl From<AlgoConfig> for AlgoKeys {
     /// its default.
     fn from(c: AlgoConfig) -> Self {
         let mut k = AlgoKeys {
-            backbone: c.backbone,
-            exploration_noise: c.exploration_noise,
-            target_noise: c.target_noise,
-            target_noise_clip: c.target_noise_clip,
+            backbone: BackboneName::Sac,
             actors: c.actors,
             critics: c.critics,
             subset: c.subset,
@@ -551,6 +589,17 @@ impl From<AlgoConfig> for AlgoKeys {
             critic_matmul: c.critic_matmul,
             ..AlgoKeys::default()
         };
+        if let Backbone::Td3 {
+            exploration_noise,
+            target_noise,
+            target_noise_clip,
+        } = c.backbone
+        {
+            k.backbone = BackboneName::Td3;
+            k.exploration_noise = exploration_noise;
+            k.target_noise = target_noise;
+            k.target_noise_clip = target_noise_clip;
+        }
         let set_distillation = |k: &mut AlgoKeys, d: Distillation| {
             k.kd_actors = d.kd_actors;
             k.without_rl = d.without_rl;
@@ -686,7 +735,7 @@ impl Default for AlgoConfig {
 impl Default for AlgoKeys {
     fn default() -> Self {
         Self {
-            backbone: Backbone::Sac,
+            backbone: BackboneName::Sac,
             exploration_noise: 0.1,
             target_noise: 0.2,
             target_noise_clip: 0.5,
@@ -902,13 +951,20 @@ impl Config {
         if let Err(m) = a.method.check(a) {
             return bad(m);
         }
-        for (key, v) in [
-            ("exploration_noise", a.exploration_noise),
-            ("target_noise", a.target_noise),
-            ("target_noise_clip", a.target_noise_clip),
-        ] {
-            if !(v >= 0.0 && v.is_finite()) {
-                return bad(format!("algo.{key} = {v} must be ≥ 0"));
+        if let Backbone::Td3 {
+            exploration_noise,
+            target_noise,
+            target_noise_clip,
+        } = a.backbone
+        {
+            for (key, v) in [
+                ("exploration_noise", exploration_noise),
+                ("target_noise", target_noise),
+                ("target_noise_clip", target_noise_clip),
+            ] {
+                if !(v >= 0.0 && v.is_finite()) {
+                    return bad(format!("algo.{key} = {v} must be ≥ 0"));
+                }
             }
         }
         if !(a.kd_weight >= 0.0 && a.kd_weight.is_finite()) {
@@ -1018,7 +1074,7 @@ impl Config {
         let actors = (a.actors as u128) * variants;
         let critics = (a.critics as u128) * variants;
         // value + gradient + Adam's m and v; targets are one more copy.
-        let actor_copies = if a.backbone == Backbone::Td3 { 5 } else { 4 };
+        let actor_copies = if a.backbone.is_td3() { 5 } else { 4 };
         let actor_floats = params(obs, 2 * act)
             .saturating_mul(actors)
             .saturating_mul(actor_copies)
@@ -1585,6 +1641,66 @@ mod tests {
     /// The method keys of every shipped baseline make the method they name, and a config
     /// writes them back as the same keys (config.toml, state.json), so files and checkpoints of
     /// earlier versions read the same.
+    #[test]
+    fn td3_noise_keys_belong_to_the_td3_backbone() {
+        let read = |sets: &[&str]| {
+            Config::from_toml_with_overrides(
+                "",
+                &sets.iter().map(|s| s.to_string()).collect::<Vec<_>>(),
+            )
+        };
+        let td3 = read(&[
+            "algo.backbone=\"td3\"",
+            "algo.exploration_noise=0.3",
+            "algo.target_noise=0.4",
+            "algo.target_noise_clip=0.6",
+        ])
+        .unwrap();
+        assert_eq!(
+            td3.algo.backbone,
+            Backbone::Td3 {
+                exploration_noise: 0.3,
+                target_noise: 0.4,
+                target_noise_clip: 0.6
+            }
+        );
+        assert_eq!(td3.algo.backbone.exploration_noise(), 0.3);
+        let written: toml::Table = toml::from_str(&td3.to_toml()).unwrap();
+        for (k, v) in [
+            ("exploration_noise", 0.3),
+            ("target_noise", 0.4),
+            ("target_noise_clip", 0.6),
+        ] {
+            assert_eq!(written["algo"][k].as_float(), Some(v), "algo.{k}");
+        }
+        assert_eq!(written["algo"]["backbone"].as_str(), Some("td3"));
+        assert_eq!(
+            Config::from_toml_with_overrides(&td3.to_toml(), &[]).unwrap(),
+            td3
+        );
+        // The keys' defaults are Fujimoto et al.'s.
+        assert_eq!(
+            read(&["algo.backbone=\"td3\""]).unwrap().algo.backbone,
+            Backbone::TD3
+        );
+        assert_eq!(
+            Backbone::TD3,
+            Backbone::Td3 {
+                exploration_noise: 0.1,
+                target_noise: 0.2,
+                target_noise_clip: 0.5
+            }
+        );
+        // SAC samples its exploration: no noise, whatever the (TD3-only) keys say.
+        let sac = read(&["algo.exploration_noise=0.3"]).unwrap();
+        assert_eq!(sac.algo.backbone, Backbone::Sac);
+        assert_eq!(sac.algo.backbone.exploration_noise(), 0.0);
+        let err = read(&["algo.backbone=\"td3\"", "algo.target_noise=-1"])
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("algo.target_noise = -1 must be ≥ 0"), "{err}");
+    }
+
     #[test]
     fn method_keys_make_one_method_and_are_written_back_unchanged() {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/baselines");

@@ -313,7 +313,7 @@ impl Selkd {
             critics.cpu_gemm = crate::matmul::chosen();
         }
         let target_critics = critics.copy();
-        let target_actors = (cfg.backbone == Backbone::Td3).then(|| actors.copy());
+        let target_actors = cfg.backbone.is_td3().then(|| actors.copy());
         let log_alpha =
             Tensor::zeros([cfg.actors as i64], (Kind::Float, device)).set_requires_grad(true);
         Self {
@@ -474,17 +474,23 @@ impl Selkd {
     fn next_actions(&mut self, s2: &Tensor) -> (Tensor, Tensor) {
         let (k, rows) = (s2.size()[0], s2.size()[1]);
         let eps = self.noise(&[k, rows, self.act_dim as i64]);
-        match &self.target_actors {
-            Some(target_actors) => {
+        match (&self.target_actors, self.cfg.backbone) {
+            (
+                Some(target_actors),
+                Backbone::Td3 {
+                    target_noise,
+                    target_noise_clip: clip,
+                    ..
+                },
+            ) => {
                 let (mu, _) = split_head(&target_actors.forward(s2));
-                let clip = self.cfg.target_noise_clip;
-                let smoothing = (eps * self.cfg.target_noise).clamp(-clip, clip);
+                let smoothing = (eps * target_noise).clamp(-clip, clip);
                 (
                     (mu.tanh() + smoothing).clamp(-1.0, 1.0),
                     Tensor::zeros([k, rows], (Kind::Float, self.device)),
                 )
             }
-            None => {
+            _ => {
                 let (mu, log_std) = split_head(&self.actors.forward(s2));
                 sample(&mu, &log_std, &eps)
             }
@@ -673,7 +679,7 @@ impl Selkd {
         let kl = self.distance_to_reference(s, &a, &mu, &log_std, best); // line 18
         let kd = self.on_device(&self.kd_weights(best)).view([k, 1]);
         let alpha = match self.cfg.backbone {
-            Backbone::Td3 => Tensor::zeros([k, 1], (Kind::Float, self.device)),
+            Backbone::Td3 { .. } => Tensor::zeros([k, 1], (Kind::Float, self.device)),
             Backbone::Sac => self.alpha().view([k, 1]),
         };
         let rl = self.on_device(&self.objective.rl).view([k, 1]);
@@ -696,7 +702,7 @@ impl Selkd {
     fn actions(&mut self, mu: &Tensor, log_std: &Tensor) -> (Tensor, Tensor) {
         let (k, b) = (mu.size()[0], mu.size()[1]);
         match self.cfg.backbone {
-            Backbone::Td3 => (mu.tanh(), Tensor::zeros([k, b], (Kind::Float, self.device))),
+            Backbone::Td3 { .. } => (mu.tanh(), Tensor::zeros([k, b], (Kind::Float, self.device))),
             Backbone::Sac => {
                 let eps = self.noise(&[k, b, self.act_dim as i64]);
                 sample(mu, log_std, &eps)
@@ -754,7 +760,7 @@ impl Selkd {
             .forward(s);
         let (mu_ref, log_std_ref) = split_head(&reference_head);
         match self.cfg.backbone {
-            Backbone::Td3 => (a - mu_ref.tanh())
+            Backbone::Td3 { .. } => (a - mu_ref.tanh())
                 .square()
                 .mean_dim(-1, false, Kind::Float),
             Backbone::Sac => gaussian_kl(mu, log_std, &mu_ref, &log_std_ref),
@@ -943,7 +949,7 @@ mod tests {
         let b_size = cfg.batch_size as i64;
         let mut s = Selkd::new(&cfg, obs, act, Device::Cpu, 3);
         let mut rb = filled_replay(obs, act, 200);
-        let td3 = backbone == Backbone::Td3;
+        let td3 = backbone.is_td3();
         if td3 {
             // Move the actors once so that the target actors differ from them.
             s.update_actors(&mut rb, 0, &mut RoundStats::default());
@@ -1232,7 +1238,7 @@ mod tests {
             kd_weight: lambda,
             ..small(k, n, 2)
         };
-        let td3 = backbone == Backbone::Td3;
+        let td3 = backbone.is_td3();
         let mut s = Selkd::new(&cfg, obs, act, Device::Cpu, 21);
         let mut rb = filled_replay(obs, act, 100);
         // Some temperatures away from 1, so that α_i visibly scales the entropy term.
@@ -1322,7 +1328,7 @@ mod tests {
 
     #[test]
     fn td3_actor_loss_and_gradient_match_a_hand_computation() {
-        check_actor_update(Backbone::Td3, false, None);
+        check_actor_update(Backbone::TD3, false, None);
     }
 
     /// w/o RL with λ_KD > 0: actors 1 and 2 learn only by distilling toward the best (actor 1 is
@@ -1330,7 +1336,7 @@ mod tests {
     #[test]
     fn without_rl_the_other_actors_only_distil() {
         check_actor_update(Backbone::Sac, true, None);
-        check_actor_update(Backbone::Td3, true, None);
+        check_actor_update(Backbone::TD3, true, None);
     }
 
     #[test]
@@ -1471,13 +1477,13 @@ mod tests {
     #[test]
     fn paired_critics_are_dpds_own_critic_targets() {
         check_critic_update(2, Sharing::PerUpdate, 2, Backbone::Sac, true);
-        check_critic_update(3, Sharing::PerUpdate, 2, Backbone::Td3, true);
+        check_critic_update(3, Sharing::PerUpdate, 2, Backbone::TD3, true);
     }
 
     #[test]
     fn td3_backbone_targets_use_smoothed_target_actors_and_no_entropy() {
-        check_critic_update(3, Sharing::PerUpdate, 2, Backbone::Td3, false);
-        check_critic_update(2, Sharing::PerCritic, 2, Backbone::Td3, false);
+        check_critic_update(3, Sharing::PerUpdate, 2, Backbone::TD3, false);
+        check_critic_update(2, Sharing::PerCritic, 2, Backbone::TD3, false);
     }
 
     /// Both sharing modes and every formation run, and per-critic draws N batches per update.
@@ -1537,7 +1543,7 @@ mod tests {
     /// TD3 backbone: KD is the mean-squared distance to the best actor's deterministic action.
     #[test]
     fn td3_distillation_pulls_actions_toward_the_best() {
-        check_distillation(Backbone::Td3);
+        check_distillation(Backbone::TD3);
     }
 
     fn check_distillation(backbone: Backbone) {
@@ -1589,7 +1595,7 @@ mod tests {
         ] {
             let (k, n) = (2usize, 4usize);
             let cfg = AlgoConfig {
-                backbone: Backbone::Td3,
+                backbone: Backbone::TD3,
                 kd_weight: 0.0,
                 method: if paired {
                     Method::Dpd { without_rl: false }
@@ -1804,7 +1810,7 @@ mod tests {
     /// resumed learner's next round equals the original's.
     #[test]
     fn checkpoint_round_trip_continues_identically() {
-        for backbone in [Backbone::Sac, Backbone::Td3] {
+        for backbone in [Backbone::Sac, Backbone::TD3] {
             check_checkpoint_round_trip(backbone);
         }
     }

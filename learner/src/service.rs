@@ -798,10 +798,7 @@ impl Learner {
             },
             eval_epoch: self.epochs.eval_epoch,
             eval_episodes: self.cfg.eval.episodes as u32,
-            exploration_noise: match self.cfg.algo.backbone {
-                crate::config::Backbone::Sac => 0.0,
-                crate::config::Backbone::Td3 => self.cfg.algo.exploration_noise as f32,
-            },
+            exploration_noise: self.cfg.algo.backbone.exploration_noise() as f32,
             stop: stop as u32,
             budget,
         }

@@ -134,7 +134,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         (
             "td3 backbone",
             AlgoKeys {
-                backbone: Backbone::Td3,
+                backbone: Backbone::TD3,
                 ..b.clone()
             },
             [1, 2],
@@ -142,7 +142,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         (
             "td3 backbone, per-critic, min-min",
             AlgoKeys {
-                backbone: Backbone::Td3,
+                backbone: Backbone::TD3,
                 sharing: Sharing::PerCritic,
                 target: Formation::MinMin,
                 ..b.clone()
