@@ -31,10 +31,15 @@ files=("$@")
 
 e2e="cargo test --release -p selkd-tests"
 for f in "${files[@]}"; do
+  # The protocol's own tests run first: they build in seconds, where every binary depends on
+  # the protocol and takes minutes to rebuild, so only the mutants they miss rebuild those.
+  first=()
   case "$f" in
     actor-worker/*) pkg=selkd-actor-worker; build="cargo build --release -p selkd-actor-worker" ;;
     learner/*) pkg=selkd-learner; build="cargo build --release -p selkd-learner --bin learner" ;;
-    protocol/*) pkg=selkd-protocol; build="cargo build --release --workspace --bins" ;;
+    protocol/*) pkg=selkd-protocol; build="cargo build --release -p selkd-protocol"
+      first=(--stage "cargo test --release -p selkd-protocol")
+      e2e="cargo build --release --workspace --bins && $e2e" ;;
     *) echo "mutants-e2e: $f is not in actor-worker, learner or protocol" >&2; exit 2 ;;
   esac
   name=$(echo "$f" | sed 's#/src/#-#; s#\.rs$##; s#/#-#g')
@@ -45,6 +50,7 @@ for f in "${files[@]}"; do
   cargo mutants --in-place --list --json --diff --package "$pkg" --file "$f" \
     --exclude-re 'Vec::leak' > "$list"
   python3 deploy/mutants_e2e.py "$list" "docs/mutants/$name.csv" --build "$build" --timeout 900 \
+    "${first[@]}" \
     --stage "$e2e --test data_path" \
     --stage "cargo test --release -p $pkg" \
     --stage "$e2e --test faults --test recovery -- --test-threads 1" \
