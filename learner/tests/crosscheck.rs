@@ -18,7 +18,7 @@
 
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
-use selkd_learner::config::{ActorQ, AlgoConfig, AlgoKeys, Backbone, Sharing};
+use selkd_learner::config::{ActorQ, AlgoConfig, AlgoKeys, BackboneName, Sharing};
 use selkd_learner::ensemble::Ensemble;
 use selkd_learner::matmul::CpuGemm;
 use selkd_learner::optim::Adam;
@@ -134,7 +134,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         (
             "td3 backbone",
             AlgoKeys {
-                backbone: Backbone::TD3,
+                backbone: BackboneName::Td3,
                 ..b.clone()
             },
             [1, 2],
@@ -142,7 +142,7 @@ fn cases() -> Vec<(&'static str, AlgoConfig, [usize; 2])> {
         (
             "td3 backbone, per-critic, min-min",
             AlgoKeys {
-                backbone: Backbone::TD3,
+                backbone: BackboneName::Td3,
                 sharing: Sharing::PerCritic,
                 target: Formation::MinMin,
                 ..b.clone()
