@@ -231,4 +231,81 @@ mod tests {
         // The first few of those steps are still inside the episode: resumed fine.
         assert!(Rollout::resume(env(), 0, 9, &cursor(3), &actions[..9]).is_ok());
     }
+
+    /// A worker restarted mid-episode replays the recorded steps and goes on: the rows it sends
+    /// after the cursor and the episode's return (what ranks the actors) must be those of a
+    /// worker that was never interrupted, including the reward of the replayed steps.
+    #[test]
+    fn a_resumed_rollout_continues_the_episode_exactly() {
+        let env = || selkd_envs::make("pendulum").unwrap();
+        let spec = env().spec().clone();
+        let layout = selkd_policy::ActorLayout::new(spec.obs_dim, spec.act_dim, &[4]);
+        let n = layout.num_params();
+        // Small non-zero weights: the policy's actions depend on the state.
+        let params = (0..n)
+            .map(|i| ((i * 37 % 11) as f32 - 5.0) * 0.05)
+            .collect();
+        let policy = Actor::from_flat(layout, params).unwrap();
+        let control = |warmup_steps| Control {
+            protocol_version: 0,
+            actors: 1,
+            env: selkd_protocol::Name::new("pendulum"),
+            env_options: 0,
+            obs_dim: spec.obs_dim as u32,
+            act_dim: spec.act_dim as u32,
+            seed: 5,
+            hidden: [0; selkd_protocol::MAX_HIDDEN_LAYERS],
+            hidden_layers: 0,
+            warmup_steps,
+            weights_version: 0,
+            max_policy_lag: 0,
+            eval_epoch: 0,
+            eval_episodes: 0,
+            exploration_noise: 0.0,
+            stop: 0,
+            budget: [0; selkd_protocol::MAX_ACTORS],
+        };
+        let cursor = |step| CursorHeader {
+            worker: 0,
+            incarnation: 1,
+            sent: step,
+            episode: 0,
+            step,
+        };
+        // 20 warm-up steps, then the policy's, to the end of the 200-step episode.
+        let play = |mut r: Rollout, steps| {
+            let mut rows = Vec::new();
+            let mut ret = f64::NAN;
+            for _ in 0..steps {
+                r.step(&policy, &control(20), |taken, row| {
+                    rows.push(row.to_vec());
+                    ret = taken.episode_return;
+                    Ok(())
+                })
+                .unwrap();
+            }
+            (rows, ret)
+        };
+        let (rows, whole) = play(Rollout::resume(env(), 0, 5, &cursor(0), &[]).unwrap(), 200);
+        assert!(
+            whole.is_finite() && whole < 0.0,
+            "pendulum's return: {whole}"
+        );
+        let row = TransitionRow {
+            obs_dim: spec.obs_dim,
+            act_dim: spec.act_dim,
+        };
+        let at = 60;
+        let actions: Vec<f32> = rows[..at]
+            .iter()
+            .flat_map(|r| row.split(r).1.to_vec())
+            .collect();
+        let resumed = Rollout::resume(env(), 0, 5, &cursor(at as u64), &actions).unwrap();
+        let (rest, resumed_return) = play(resumed, 200 - at);
+        assert_eq!(rest, rows[at..], "the rows after the cursor");
+        assert_eq!(
+            resumed_return, whole,
+            "the episode's return counts the replayed steps"
+        );
+    }
 }
