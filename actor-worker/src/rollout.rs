@@ -274,19 +274,24 @@ mod tests {
         };
         // 20 warm-up steps, then the policy's, to the end of the 200-step episode.
         let play = |mut r: Rollout, steps| {
-            let mut rows = Vec::new();
+            let (mut rows, mut warmup) = (Vec::new(), Vec::new());
             let mut ret = f64::NAN;
             for _ in 0..steps {
                 r.step(&policy, &control(20), |taken, row| {
                     rows.push(row.to_vec());
+                    warmup.push(taken.warmup);
                     ret = taken.episode_return;
                     Ok(())
                 })
                 .unwrap();
             }
-            (rows, ret)
+            (rows, ret, warmup)
         };
-        let (rows, whole) = play(Rollout::resume(env(), 0, 5, &cursor(0), &[]).unwrap(), 200);
+        let (rows, whole, warmup) =
+            play(Rollout::resume(env(), 0, 5, &cursor(0), &[]).unwrap(), 200);
+        // Uniform draws for exactly the first `warmup_steps` transitions, the policy after.
+        let expected: Vec<bool> = (0..200).map(|i| i < 20).collect();
+        assert_eq!(warmup, expected, "which steps are warm-up");
         assert!(
             whole.is_finite() && whole < 0.0,
             "pendulum's return: {whole}"
@@ -301,7 +306,7 @@ mod tests {
             .flat_map(|r| row.split(r).1.to_vec())
             .collect();
         let resumed = Rollout::resume(env(), 0, 5, &cursor(at as u64), &actions).unwrap();
-        let (rest, resumed_return) = play(resumed, 200 - at);
+        let (rest, resumed_return, _) = play(resumed, 200 - at);
         assert_eq!(rest, rows[at..], "the rows after the cursor");
         assert_eq!(
             resumed_return, whole,
