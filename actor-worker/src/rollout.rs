@@ -292,14 +292,23 @@ mod tests {
         // Uniform draws for exactly the first `warmup_steps` transitions, the policy after.
         let expected: Vec<bool> = (0..200).map(|i| i < 20).collect();
         assert_eq!(warmup, expected, "which steps are warm-up");
-        assert!(
-            whole.is_finite() && whole < 0.0,
-            "pendulum's return: {whole}"
-        );
+        // ... and the warm-up's draws cover the action box [−1, 1] (Pendulum has one action).
         let row = TransitionRow {
             obs_dim: spec.obs_dim,
             act_dim: spec.act_dim,
         };
+        let drawn: Vec<f32> = rows[..20].iter().map(|r| row.split(r).1[0]).collect();
+        let (lo, hi) = drawn
+            .iter()
+            .fold((1f32, -1f32), |(l, h), &a| (l.min(a), h.max(a)));
+        assert!(
+            lo >= -1.0 && hi <= 1.0 && lo < -0.5 && hi > 0.5,
+            "warm-up draws {drawn:?}"
+        );
+        assert!(
+            whole.is_finite() && whole < 0.0,
+            "pendulum's return: {whole}"
+        );
         let at = 60;
         let actions: Vec<f32> = rows[..at]
             .iter()
