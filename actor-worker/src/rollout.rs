@@ -305,6 +305,18 @@ mod tests {
             lo >= -1.0 && hi <= 1.0 && lo < -0.5 && hi > 0.5,
             "warm-up draws {drawn:?}"
         );
+        // After it, SAC's workers (no exploration noise) sample from the policy: not its mean.
+        let off_mean = rows[20..]
+            .iter()
+            .filter(|r| {
+                let (obs, action, ..) = row.split(r);
+                (action[0] - policy.mean_action(obs)[0]).abs() > 1e-3
+            })
+            .count();
+        assert!(
+            off_mean > 100,
+            "{off_mean} of 180 sampled actions differ from the mean action"
+        );
         assert!(
             whole.is_finite() && whole < 0.0,
             "pendulum's return: {whole}"
