@@ -205,18 +205,22 @@ mod tests {
         assert_eq!(mix(&[42, 2, 0, 5, 1]), 0x9c0a_7e7c_c937_82bc);
     }
 
-    /// A record whose actions end the episode when replayed (another env build, or an env that
-    /// does not repeat itself) must refuse the join, not go on from a finished episode.
-    #[test]
-    fn a_record_that_ends_its_episode_on_replay_is_refused() {
-        let env = || selkd_envs::make("hopper").unwrap();
-        let cursor = |step| CursorHeader {
+    /// Worker 0's cursor `step` steps into its first episode.
+    fn cursor(step: u64) -> CursorHeader {
+        CursorHeader {
             worker: 0,
             incarnation: 1,
             sent: step,
             episode: 0,
             step,
-        };
+        }
+    }
+
+    /// A record whose actions end the episode when replayed (another env build, or an env that
+    /// does not repeat itself) must refuse the join, not go on from a finished episode.
+    #[test]
+    fn a_record_that_ends_its_episode_on_replay_is_refused() {
+        let env = || selkd_envs::make("hopper").unwrap();
         // Full torque on every joint for 300 steps: the hopper falls long before.
         let actions = vec![1.0f32; 300 * 3];
         let err = Rollout::resume(env(), 0, 9, &cursor(300), &actions)
@@ -264,13 +268,6 @@ mod tests {
             exploration_noise: 0.0,
             stop: 0,
             budget: [0; selkd_protocol::MAX_ACTORS],
-        };
-        let cursor = |step| CursorHeader {
-            worker: 0,
-            incarnation: 1,
-            sent: step,
-            episode: 0,
-            step,
         };
         // 20 warm-up steps, then the policy's, to the end of the 200-step episode.
         let play = |mut r: Rollout, steps| {
