@@ -16,14 +16,8 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
 bash deploy/setup.sh
 
-version=27.1.0
-cache=${SELKD_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/selkd}
-tool="$cache/cargo-mutants-$version"
-if [ ! -x "$tool/bin/cargo-mutants" ]; then
-  echo "mutants-e2e: installing cargo-mutants $version into $tool (one time, a few minutes)" >&2
-  cargo install --locked cargo-mutants --version "$version" --root "$tool"
-fi
-export PATH="$tool/bin:$PATH"
+tool_bin=$(bash deploy/cargo-mutants.sh)
+export PATH="$tool_bin:$PATH"
 
 files=("$@")
 [ ${#files[@]} -gt 0 ] || files=(actor-worker/src/rollout.rs actor-worker/src/link.rs

@@ -18,13 +18,7 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
 bash deploy/setup.sh
 
-version=27.1.0
-cache=${SELKD_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/selkd}
-tool="$cache/cargo-mutants-$version"
-if [ ! -x "$tool/bin/cargo-mutants" ]; then
-  echo "mutants: installing cargo-mutants $version into $tool (one time, a few minutes)" >&2
-  cargo install --locked cargo-mutants --version "$version" --root "$tool"
-fi
+tool_bin=$(bash deploy/cargo-mutants.sh)
 
 if ! git diff --quiet HEAD -- learner/src; then
   echo "mutants: learner/src has uncommitted changes; commit or stash them first (mutants run in place)" >&2
@@ -51,6 +45,6 @@ export CARGO_PROFILE_RELEASE_INCREMENTAL=true
 out=${MUTANTS_OUT:-target/mutants}
 mkdir -p "$out"
 # shellcheck disable=SC2086 # MUTANTS_ARGS is a list of flags
-PATH="$tool/bin:$PATH" cargo mutants --package selkd-learner --profile release \
+PATH="$tool_bin:$PATH" cargo mutants --package selkd-learner --profile release \
   --in-place --timeout 300 --build-timeout 1200 --output "$out" \
   "${args[@]}" ${MUTANTS_ARGS:-} "$@"
