@@ -2,6 +2,9 @@
 //! on the run's env and `[env_options]`, a few episodes each: mean ± std return, and the success
 //! rate on tasks that have one. A table, or JSON with `--json`.
 //!
+//! `--env-options` changes some of the run's options for the replay (`substeps = 50` plays the
+//! policy integrated 10× finer than a 5-substep robot trained: issue 32's learned-policy check).
+//!
 //! Episodes use the re-evaluation seeds `selkd experiment report` uses (`fresh_seed`), none of
 //! which any in-run evaluation played, unless `--seed S` asks for `S, S + 1, …`.
 
@@ -26,6 +29,10 @@ pub struct EvalArgs {
     /// Play seeds S, S + 1, … (default: the fresh re-evaluation seeds no training run played).
     #[arg(long)]
     seed: Option<u64>,
+    /// Replace some of the run's `[env_options]` for these episodes, as JSON (`{"substeps": 50}`)
+    /// or TOML (`substeps = 50`); the run's other options stay.
+    #[arg(long)]
+    env_options: Option<String>,
     /// JSON on stdout instead of a table.
     #[arg(long)]
     json: bool,
@@ -122,7 +129,11 @@ fn run_inner(args: EvalArgs) -> Result<()> {
     if args.episodes == 0 {
         bail!("--episodes must be at least 1");
     }
-    let (checkpoint, cfg) = locate(&args.path)?;
+    let (checkpoint, mut cfg) = locate(&args.path)?;
+    if let Some(text) = &args.env_options {
+        let changed = crate::render::parse_env_options(text)?;
+        cfg.env_options.extend(changed);
+    }
     let best = load_actor(&checkpoint, None)?;
     let indices: Vec<usize> = match which {
         Which::Best => vec![best.index],
@@ -135,8 +146,13 @@ fn run_inner(args: EvalArgs) -> Result<()> {
                 .map_or_else(|| fresh_seed(e), |s| s.wrapping_add(e))
         })
         .collect();
-    let mut env = selkd_envs::make_with(&cfg.run.env, &cfg.env_options)
-        .with_context(|| format!("making the run's env `{}`", cfg.run.env))?;
+    let mut env = selkd_envs::make_with(&cfg.run.env, &cfg.env_options).with_context(|| {
+        format!(
+            "making the run's env `{}` with options `{}`",
+            cfg.run.env,
+            cfg.env_options.to_string().trim()
+        )
+    })?;
     let mut results = vec![];
     for &i in &indices {
         let loaded = load_actor(&checkpoint, Some(i))?;
@@ -223,10 +239,20 @@ fn table(
     let with_success = results
         .iter()
         .any(|r| r.evaluation.success_rate().is_finite());
+    let options: Vec<String> = cfg
+        .env_options
+        .iter()
+        .map(|(k, v)| format!("{k} = {v}"))
+        .collect();
     let mut out = format!(
-        "{}: env {}, {} deterministic episode{} per actor ({})\n",
+        "{}: env {}{}, {} deterministic episode{} per actor ({})\n",
         checkpoint.display(),
         cfg.run.env,
+        if options.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", options.join(", "))
+        },
         seeds.len(),
         if seeds.len() == 1 { "" } else { "s" },
         if own_seeds {

@@ -183,6 +183,45 @@ fn eval_reports_every_actor_on_the_runs_env_and_matches_an_independent_evaluatio
     ]);
     assert_eq!(from_ckpt["actors"], all["actors"]);
 
+    // --env-options replaces the run's g for the replay (and only for it): the same actor on the
+    // same seeds, played here at g = 9, gives eval's numbers; the run's own options are the
+    // default again afterwards.
+    let light = eval_json(&[
+        run_arg,
+        "--actor",
+        "0",
+        "--episodes",
+        "2",
+        "--env-options",
+        "g = 9.0",
+        "--json",
+    ]);
+    assert_eq!(light["env_options"], serde_json::json!({"g": 9.0}));
+    let opts9: selkd_envs::EnvOptions = serde_json::from_str(r#"{"g": 9.0}"#).unwrap();
+    let mut env9 = selkd_envs::make_with("pendulum", &opts9).unwrap();
+    for (e, seed) in light["seeds"].as_array().unwrap().iter().enumerate() {
+        let mut obs = env9.reset(Some(seed.as_u64().unwrap()));
+        let mut total = 0.0;
+        loop {
+            let s = env9.step(&mean_action(&tensors, 0, &obs));
+            total += s.reward;
+            if s.terminated || s.truncated {
+                break;
+            }
+            obs = s.obs;
+        }
+        let got = light["actors"][0]["returns"][e].as_f64().unwrap();
+        assert!(
+            (got - total).abs() <= 1e-3 * total.abs().max(1.0),
+            "episode {e} at g = 9: eval {got} vs here {total}"
+        );
+    }
+    assert_ne!(light["actors"][0]["returns"], actors[0]["returns"]);
+    let out = eval(&[run_arg, "--episodes", "1", "--env-options", r#"{"g": 9.0}"#]);
+    assert!(out.status.success());
+    let header = String::from_utf8_lossy(&out.stdout);
+    assert!(header.contains("env pendulum (g = 9.0)"), "{header}");
+
     // The table: a row per actor, the best marked.
     let out = eval(&[run_arg, "--actor", "all", "--episodes", "2"]);
     assert!(out.status.success());
@@ -216,6 +255,11 @@ fn eval_reports_every_actor_on_the_runs_env_and_matches_an_independent_evaluatio
             "pass its checkpoint directory",
         ),
         (vec![dir.to_str().unwrap()], "neither a run directory"),
+        (vec![run_arg, "--env-options", "gravity = 1.0"], "gravity"),
+        (
+            vec![run_arg, "--env-options", "{g: 1"],
+            "--env-options is not a JSON",
+        ),
     ] {
         let out = eval(&args);
         let err = String::from_utf8_lossy(&out.stderr);
