@@ -211,8 +211,10 @@ fn json(
                 "mean_return": finite(e.mean_return()),
                 "std_return": finite(sample_std(&e.returns)),
                 "success_rate": finite(e.success_rate()),
+                "mean_length": finite(e.mean_length()),
                 "returns": e.returns,
                 "successes": e.successes,
+                "lengths": e.lengths,
             })
         })
         .collect();
@@ -261,7 +263,10 @@ fn table(
             "fresh seeds, none played in training".into()
         }
     );
-    out += &format!("{:<9} {:>22}", "actor", "return (mean ± std)");
+    out += &format!(
+        "{:<9} {:>22} {:>7}",
+        "actor", "return (mean ± std)", "length"
+    );
     if with_success {
         out += &format!(" {:>8}", "success");
     }
@@ -279,7 +284,7 @@ fn table(
             r.actor,
             if r.actor == best { " (best)" } else { "" }
         );
-        out += &format!("{name:<9} {ret:>22}");
+        out += &format!("{name:<9} {ret:>22} {:>7.0}", e.mean_length());
         if with_success {
             out += &format!(" {:>7.0}%", 100.0 * e.success_rate());
         }
@@ -312,6 +317,7 @@ mod tests {
                 evaluation: Evaluation {
                     returns: vec![1.0, 3.0, 2.0, 6.0],
                     successes: vec![Some(true), Some(false), Some(true), Some(true)],
+                    lengths: vec![10, 20, 30, 41],
                 },
             },
             ActorResult {
@@ -319,15 +325,19 @@ mod tests {
                 evaluation: Evaluation {
                     returns: vec![-2.0],
                     successes: vec![Some(false)],
+                    lengths: vec![7],
                 },
             },
         ];
         let t = table(Path::new("ck"), &cfg, 1, &[5, 6, 7, 8], true, &results);
         let rows: Vec<&str> = t.lines().collect();
         assert!(rows[1].contains("success"), "{t}");
-        // Actor 0: mean 3, sample std sqrt(14/3) = 2.16, 3 of 4 succeeded.
+        // Actor 0: mean 3, sample std sqrt(14/3) = 2.16, mean length 101 / 4 = 25.25, 3 of 4
+        // succeeded.
         assert!(
-            rows[2].starts_with("0 ") && rows[2].contains("3.0 ± 2.2") && rows[2].ends_with("75%"),
+            rows[2].starts_with("0 ")
+                && rows[2].contains("3.0 ± 2.2      25 ")
+                && rows[2].ends_with("75%"),
             "{t}"
         );
         assert!(
@@ -343,6 +353,8 @@ mod tests {
         assert!(j["actors"][1]["std_return"].is_null());
         assert_eq!(j["actors"][1]["best"], true);
         assert_eq!(j["actors"][0]["successes"][1], false);
+        assert_eq!(j["actors"][0]["mean_length"], 25.25);
+        assert_eq!(j["actors"][1]["lengths"], serde_json::json!([7]));
     }
 
     #[test]

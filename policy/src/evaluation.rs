@@ -18,11 +18,17 @@ pub struct Evaluation {
     pub returns: Vec<f64>,
     /// Whether each episode succeeded, for tasks with a success criterion (else `None`).
     pub successes: Vec<Option<bool>>,
+    /// Steps of each episode (shorter than the time limit where the task terminated it).
+    pub lengths: Vec<usize>,
 }
 
 impl Evaluation {
     pub fn mean_return(&self) -> f64 {
         self.returns.iter().sum::<f64>() / self.returns.len().max(1) as f64
+    }
+
+    pub fn mean_length(&self) -> f64 {
+        self.lengths.iter().sum::<usize>() as f64 / self.lengths.len().max(1) as f64
     }
 
     /// Fraction of successful episodes; NaN for tasks without success.
@@ -45,13 +51,15 @@ pub fn evaluate(
     let mut out = Evaluation::default();
     for seed in seeds {
         let mut obs = env.reset(Some(seed));
-        let mut total = 0.0;
+        let (mut total, mut length) = (0.0, 0);
         loop {
             let step = env.step(&policy.mean_action(&obs));
             total += step.reward;
+            length += 1;
             if step.terminated || step.truncated {
                 out.returns.push(total);
                 out.successes.push(step.success);
+                out.lengths.push(length);
                 break;
             }
             obs = step.obs;

@@ -128,15 +128,17 @@ fn eval_reports_every_actor_on_the_runs_env_and_matches_an_independent_evaluatio
             .collect();
         for (e, &seed) in seeds.iter().enumerate() {
             let mut obs = env.reset(Some(seed));
-            let mut total = 0.0;
+            let (mut total, mut length) = (0.0, 0);
             loop {
                 let s = env.step(&mean_action(&tensors, i, &obs));
                 total += s.reward;
+                length += 1;
                 if s.terminated || s.truncated {
                     break;
                 }
                 obs = s.obs;
             }
+            assert_eq!(a["lengths"][e], length, "actor {i} episode {e}");
             // f64 here, f32 in the policy crate: the same episode up to round-off.
             assert!(
                 (returns[e] - total).abs() <= 1e-3 * total.abs().max(1.0),

@@ -1,0 +1,67 @@
+#!/usr/bin/env bash
+# Issue 32's learned-policy check (goal 1): our SAC trained on one of our rapier tasks at its
+# shipped integration settings, SEEDS seeds, then each run's best actor replayed on the same 10
+# fresh episodes at the shipped settings and integrated 10x finer (10x the substeps, same control
+# step, same solver iterations). A policy that learned a gait keeps its return and episode length
+# when integrated finely; one that learned the integrator's error loses them. Writes
+# OUT/TASK/seed-N.{coarse,fine}.json (`selkd eval --json`) and OUT/TASK/table.md, and prints the
+# table. Not a test: a measurement to run by hand (docs/results/fidelity.md).
+#   bash deploy/compare/learned-policy-fidelity.sh [TASK] [SEEDS] [STEPS] [OUT]
+#   JOBS=2 bash deploy/compare/learned-policy-fidelity.sh halfcheetah 3 30000 /work/fidelity-runs
+# Our SAC as in deploy/compare/sac-vs-sb3.sh (SB3's sizes: [256, 256], batch 256, one update per
+# env step, 256 warm-up steps). Resumable: a seed whose seed-N.fine.json exists is skipped; a
+# training run interrupted midway starts again. JOBS runs at a time (default 1), one thread each.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+task=${1:-halfcheetah}
+seeds=${2:-3}
+steps=${3:-30000}
+out=${4:-runs/learned-policy-fidelity}/$task
+jobs=${JOBS:-1}
+selkd=${SELKD_BIN:-target/release/selkd}
+[ -x "$selkd" ] || { echo "learned-policy-fidelity: build first: cargo build --release" >&2; exit 1; }
+# The shipped substeps of each task (its `SIM` in envs/src/TASK.rs); 10x of them is the reference.
+case "$task" in
+    hopper) substeps=1 ;;
+    walker2d) substeps=4 ;;
+    halfcheetah | ant) substeps=5 ;;
+    humanoid) substeps=2 ;;
+    *) echo "learned-policy-fidelity: TASK is one of hopper, walker2d, halfcheetah, ant, humanoid (got $task)" >&2; exit 2 ;;
+esac
+fine=$((10 * substeps))
+grep -q "substeps: $substeps," "envs/src/$task.rs" \
+    || { echo "learned-policy-fidelity: $task no longer ships $substeps substeps; update this script" >&2; exit 1; }
+mkdir -p "$out"
+one() {
+    local s=$1 d="$out/seed-$1"
+    rm -rf "$d"
+    "$selkd" train --config configs/baselines/sac.toml --run-dir "$d" \
+        --set run.env="$task" --set run.seed="$s" --set run.total_env_steps="$steps" \
+        --set run.threads=1 --set algo.hidden=[256,256] --set algo.batch_size=256 \
+        --set algo.warmup_steps=256 --set eval.epoch_env_steps=$((steps / 10)) \
+        --set eval.episodes=5 > "$d.log" 2>&1 \
+        || { echo "learned-policy-fidelity: seed $s failed; see $d.log" >&2; return 1; }
+    "$selkd" eval "$d" --episodes 10 --json > "$out/seed-$s.coarse.json"
+    "$selkd" eval "$d" --episodes 10 --json --env-options "substeps = $fine" > "$out/seed-$s.fine.json.partial"
+    mv "$out/seed-$s.fine.json.partial" "$out/seed-$s.fine.json"
+}
+export -f one; export out task steps fine selkd
+for s in $(seq 1 "$seeds"); do
+    [ -f "$out/seed-$s.fine.json" ] || echo "$s"
+done | xargs -r -P "$jobs" -I{} bash -c 'one {}'
+python3 - "$out" "$seeds" "$substeps" "$fine" <<'EOF' | tee "$out/table.md"
+import json, sys
+out, seeds, coarse_n, fine_n = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4]
+def load(s, which):
+    a = json.load(open(f"{out}/seed-{s}.{which}.json"))["actors"][0]
+    return a["mean_return"], a["mean_length"]
+def gap(a, b):
+    return f"{100 * abs(a - b) / abs(b):.0f}%" if b else "n/a"
+print(f"| seed | return, {coarse_n} substeps | {fine_n} substeps | gap | length | 10x finer | gap |")
+print("|---|---|---|---|---|---|---|")
+rows = [(s, *load(s, "coarse"), *load(s, "fine")) for s in range(1, seeds + 1)]
+for s, r, l, rf, lf in rows:
+    print(f"| {s} | {r:.0f} | {rf:.0f} | {gap(r, rf)} | {l:.0f} | {lf:.0f} | {gap(l, lf)} |")
+m = [sum(x[i] for x in rows) / len(rows) for i in range(1, 5)]
+print(f"| mean | {m[0]:.0f} | {m[2]:.0f} | {gap(m[0], m[2])} | {m[1]:.0f} | {m[3]:.0f} | {gap(m[1], m[3])} |")
+EOF
