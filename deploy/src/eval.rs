@@ -70,7 +70,12 @@ pub(crate) fn locate(path: &Path) -> Result<(PathBuf, Config)> {
     let checkpoint = if path.join("state.json").exists() {
         path.to_path_buf()
     } else if path.join("config.toml").exists() {
-        latest_checkpoint(path)?
+        latest_checkpoint(path).ok_or_else(|| {
+            anyhow!(
+                "{}: the run has no checkpoint yet (no checkpoints/latest or checkpoints/final); let it write one (run.checkpoint_every) or wait for it to finish",
+                path.display()
+            )
+        })?
     } else {
         bail!(
             "{}: neither a run directory (config.toml) nor a checkpoint directory (state.json)",
@@ -87,21 +92,17 @@ pub(crate) fn locate(path: &Path) -> Result<(PathBuf, Config)> {
     Ok((checkpoint, cfg))
 }
 
-/// The checkpoint a run's `checkpoints/latest` names, else its `final`.
-fn latest_checkpoint(run: &Path) -> Result<PathBuf> {
+/// The checkpoint a run's `checkpoints/latest` names, else its `final`; `None` before the run
+/// has written one. (`selkd render --run` uses it too.)
+pub(crate) fn latest_checkpoint(run: &Path) -> Option<PathBuf> {
     let dir = run.join("checkpoints");
     let named = std::fs::read_to_string(dir.join("latest"))
         .ok()
         .map(|n| dir.join(n.trim()));
-    for c in named.into_iter().chain([dir.join("final")]) {
-        if c.join("state.json").exists() {
-            return Ok(c);
-        }
-    }
-    bail!(
-        "{}: the run has no checkpoint yet (no checkpoints/latest or checkpoints/final); let it write one (run.checkpoint_every) or wait for it to finish",
-        run.display()
-    )
+    named
+        .into_iter()
+        .chain([dir.join("final")])
+        .find(|c| c.join("state.json").exists() && c.join("model.safetensors").exists())
 }
 
 /// One actor's episodes.

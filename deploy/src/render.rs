@@ -110,25 +110,6 @@ pub fn parse_env_options(text: &str) -> Result<EnvOptions> {
     }
 }
 
-/// The checkpoint a run's `checkpoints/latest` names (or `final`).
-fn latest_checkpoint(run: &Path) -> Result<PathBuf> {
-    let dir = run.join("checkpoints");
-    if let Ok(name) = std::fs::read_to_string(dir.join("latest")) {
-        let p = dir.join(name.trim());
-        if p.join("model.safetensors").exists() {
-            return Ok(p);
-        }
-    }
-    let p = dir.join("final");
-    if p.join("model.safetensors").exists() {
-        return Ok(p);
-    }
-    bail!(
-        "--run {}: no checkpoint yet (no checkpoints/latest or checkpoints/final); let the run write one, or drop --run to draw random actions",
-        run.display()
-    )
-}
-
 pub fn run(args: RenderArgs) -> Result<()> {
     // Every error is one line that says what to change.
     run_inner(args).map_err(|e| anyhow!("{}", format!("{e:#}").replace('\n', " ")))
@@ -153,7 +134,13 @@ fn run_inner(args: RenderArgs) -> Result<()> {
             })?;
             let cfg = Config::from_toml_with_overrides(&text, &[])
                 .with_context(|| format!("reading {}", path.display()))?;
-            (Some(cfg), Some(latest_checkpoint(run)?))
+            let checkpoint = crate::eval::latest_checkpoint(run).ok_or_else(|| {
+                anyhow!(
+                    "--run {}: no checkpoint yet (no checkpoints/latest or checkpoints/final); let the run write one, or drop --run to draw random actions",
+                    run.display()
+                )
+            })?;
+            (Some(cfg), Some(checkpoint))
         }
         (None, Some(c)) => (None, Some(c.clone())),
         (None, None) => (None, None),
