@@ -3,7 +3,10 @@ are: every EVERY env steps, EPISODES deterministic episodes on a separate env. O
 evaluation: seed,env_steps,mean_return. Run by deploy/compare/sac-vs-sb3.sh.
 
 Usage: python sb3_sac.py TASK SEED STEPS [EVERY] [EPISODES]   (e.g. Hopper-v5 1 50000 5000 10)
+TASK is any Gymnasium id, ours included (`selkd/HalfCheetah-v0`: the selkd package registers
+them). LEARNING_STARTS=N in the environment replaces SB3's default 100 uniform-random steps.
 """
+import os
 import sys
 
 import gymnasium as gym
@@ -17,6 +20,8 @@ torch.set_num_threads(1)
 task, seed, steps = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 every = int(sys.argv[4]) if len(sys.argv) > 4 else 1000
 episodes = int(sys.argv[5]) if len(sys.argv) > 5 else 10
+if task.startswith("selkd/"):
+    import selkd  # noqa: F401  (registers selkd/<Name>-v0)
 
 
 class Evaluate(BaseCallback):
@@ -42,5 +47,6 @@ class Evaluate(BaseCallback):
 
 # SB3's defaults for SAC: lr 3e-4, buffer 1e6, learning_starts 100, batch 256, tau 0.005,
 # gamma 0.99, train_freq 1, gradient_steps 1, ent_coef "auto" (target entropy −|A|), [256, 256].
-model = SAC("MlpPolicy", gym.make(task), seed=seed, device="cpu", verbose=0)
+starts = int(os.environ.get("LEARNING_STARTS", 100))
+model = SAC("MlpPolicy", gym.make(task), seed=seed, device="cpu", verbose=0, learning_starts=starts)
 model.learn(total_timesteps=steps, callback=Evaluate())
