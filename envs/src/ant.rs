@@ -749,41 +749,92 @@ mod tests {
         }
     }
 
-    /// Issue 32 for the ant (a measurement run by hand): the open-loop trot (10 settling steps,
-    /// then 200) over seeds 0–4 at [`SIM`] and 10× finer, with rapier's semi-implicit
-    /// multibody step (the ant's) and the explicit one the halfcheetah uses: `cargo test
-    /// --release -p selkd-envs ant::tests::fidelity -- --ignored --nocapture`.
+    /// The open-loop trot (10 settling steps, then 200 of [`TROT`]) on each of `seeds` at `sim`
+    /// (and the Coriolis step `explicit` asks for; `None`: the ant's own): per seed the distance
+    /// along x over the trot, m, and its return; and how many episodes fell (terminated).
+    fn trot_episodes(
+        sim: SimParams,
+        explicit: Option<bool>,
+        seeds: u64,
+    ) -> (Vec<(f32, f64)>, usize) {
+        let mut env = Ant::with_sim(AntObs::State, sim);
+        env.robot.set_tuning(crate::physics::PhysicsTuning {
+            explicit_coriolis: explicit,
+            ..Default::default()
+        });
+        let mut fell = 0;
+        let episodes = (0..seeds)
+            .map(|seed| {
+                env.reset(Some(seed));
+                for _ in 0..10 {
+                    env.step(&[0.0; 8]);
+                }
+                let (x0, mut ret) = (env.qpos()[0], 0.0);
+                for t in 0..200 {
+                    let s = env.step(&trot(t, TROT));
+                    ret += s.reward;
+                    if s.terminated {
+                        fell += 1;
+                        break;
+                    }
+                }
+                (env.qpos()[0] - x0, ret)
+            })
+            .collect();
+        (episodes, fell)
+    }
+
+    fn mean(v: impl Iterator<Item = f64>) -> f64 {
+        let v: Vec<f64> = v.collect();
+        v.iter().sum::<f64>() / v.len() as f64
+    }
+
+    /// Issue 32's open-loop check for the ant: over seeds 0–23 (single seeds of this chaotic trot
+    /// go anywhere from −5 to 10 m, so fewer cannot tell a 15% gap from noise) the trot's mean
+    /// distance and return at [`SIM`] are within 15% of the same trot integrated 10× finer, and
+    /// no episode falls. Measured: 5.80 m against 5.74 m (1%).
+    #[test]
+    fn trot_converged() {
+        let fine = SimParams {
+            substeps: 10 * SIM.substeps,
+            ..SIM
+        };
+        let (at, fell_at) = trot_episodes(SIM, None, 24);
+        let (ref_, fell_ref) = trot_episodes(fine, None, 24);
+        assert_eq!((fell_at, fell_ref), (0, 0), "the trot does not fall");
+        for (what, f) in [
+            (
+                "distance",
+                &(|e: &(f32, f64)| e.0 as f64) as &dyn Fn(&(f32, f64)) -> f64,
+            ),
+            ("return", &|e: &(f32, f64)| e.1),
+        ] {
+            let (a, b) = (mean(at.iter().map(f)), mean(ref_.iter().map(f)));
+            assert!(
+                (a - b).abs() <= 0.15 * b.abs(),
+                "ant trot {what}: {a:.3} at {SIM:?} vs {b:.3} 10x finer\n{at:?}\n{ref_:?}"
+            );
+        }
+    }
+
+    /// The same trot as a table, by hand: seeds 0–4 (`ANT_SEEDS=N`: 0..N) at [`SIM`] and 10×
+    /// finer, with rapier's semi-implicit multibody step (the ant's) and the explicit one the
+    /// halfcheetah uses: `ANT_SEEDS=24 cargo test --release -p selkd-envs ant::tests::fidelity --
+    /// --ignored --nocapture`.
     #[test]
     #[ignore]
     fn fidelity() {
+        let seeds: u64 = std::env::var("ANT_SEEDS").map_or(5, |n| n.parse().unwrap());
         for explicit in [false, true] {
             for substeps in [SIM.substeps, 10 * SIM.substeps] {
                 let sim = SimParams { substeps, ..SIM };
-                let mut env = Ant::with_sim(AntObs::State, sim);
-                env.robot.set_tuning(crate::physics::PhysicsTuning {
-                    explicit_coriolis: Some(explicit),
-                    ..Default::default()
-                });
-                let mut d = vec![];
-                let mut fell = 0;
-                for seed in 0..5 {
-                    env.reset(Some(seed));
-                    for _ in 0..10 {
-                        env.step(&[0.0; 8]);
-                    }
-                    let x0 = env.qpos()[0];
-                    for t in 0..200 {
-                        if env.step(&trot(t, TROT)).terminated {
-                            fell += 1;
-                            break;
-                        }
-                    }
-                    d.push(env.qpos()[0] - x0);
-                }
-                let mean = d.iter().sum::<f32>() / d.len() as f32;
+                let (e, fell) = trot_episodes(sim, Some(explicit), seeds);
+                let d: Vec<f32> = e.iter().map(|e| e.0).collect();
                 println!(
-                    "ant {substeps}x{} explicit {explicit}: trot {mean:.2} m {d:.2?}, {fell} fell",
-                    SIM.solver_iterations
+                    "ant {substeps}x{} explicit {explicit}: trot {:.2} m {d:.2?}, return {:.1}, {fell} fell",
+                    SIM.solver_iterations,
+                    mean(d.iter().map(|&x| x as f64)),
+                    mean(e.iter().map(|e| e.1)),
                 );
             }
         }
