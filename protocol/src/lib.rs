@@ -538,6 +538,181 @@ mod tests {
         );
         assert_eq!(Name::new("pendulum").as_str(), "pendulum");
     }
+
+    /// A run id of its own per test: tests run in parallel, and iceoryx2's services are
+    /// host-wide.
+    fn run_id(test: &str) -> String {
+        format!("t{}-{test}", std::process::id())
+    }
+
+    #[test]
+    fn each_run_and_each_service_has_its_own_name() {
+        let (a, b) = (Services::new("run-a"), Services::new("run-b"));
+        let names = |s: &Services| -> Vec<String> {
+            let mut v = vec![
+                s.transitions(),
+                s.reports(),
+                s.control(),
+                s.ranking(),
+                s.to_learner(),
+                s.to_workers(),
+            ];
+            for i in 0..3 {
+                v.push(s.weights(i));
+                v.push(s.cursor(i));
+            }
+            v.into_iter()
+                .map(|n| n.unwrap().as_str().to_string())
+                .collect()
+        };
+        let (na, nb) = (names(&a), names(&b));
+        assert_eq!(na[0], "selkd/run-a/transitions");
+        assert_eq!(na[6], "selkd/run-a/weights/0");
+        assert_eq!(na[9], "selkd/run-a/cursor/1");
+        let mut all: Vec<&String> = na.iter().chain(&nb).collect();
+        let n = all.len();
+        all.sort();
+        all.dedup();
+        assert_eq!(all.len(), n, "no two services share a name: {na:?} {nb:?}");
+        assert!(na.iter().all(|n| n.starts_with("selkd/run-a/")));
+        // iceoryx2 takes names of at most 255 bytes.
+        let e = Services::new(&"r".repeat(300)).transitions().unwrap_err();
+        assert!(e.to_string().contains("run ids may use"), "{e}");
+    }
+
+    #[test]
+    fn node_names_carry_the_run_and_the_worker_and_fit_iceoryx2() {
+        assert_eq!(learner_node_name("r1"), "learner-r1");
+        assert_eq!(worker_node_name("r1", 3), "actor-worker-3-r1");
+        assert_ne!(worker_node_name("r1", 1), worker_node_name("r1", 2));
+        // A long run id: cut to iceoryx2's 128 bytes, which it takes.
+        let name = worker_node_name(&"r".repeat(200), 1);
+        assert_eq!(name.len(), 128);
+        assert!(name.starts_with("actor-worker-1-rrr"));
+        let n = services::node(&name);
+        assert!(n.is_ok(), "iceoryx2 takes the cut name: {:?}", n.err());
+        // Of 2-byte characters: cut at a character boundary (15 ASCII bytes, then 56 whole
+        // characters), never inside one.
+        let name = worker_node_name(&"é".repeat(100), 1);
+        assert_eq!(name.len(), 127);
+        assert!(name.starts_with("actor-worker-1-é") && name.ends_with('é'));
+    }
+
+    /// A restarted worker's ports overlap its dead predecessor's until iceoryx2 cleans them up,
+    /// so a run of K actors must take 2K workers' ports (and nodes) beside the learner's.
+    #[test]
+    fn a_run_has_room_for_every_worker_and_a_dead_predecessor_of_each() {
+        let actors = 8;
+        let svc = Services::new(&run_id("room"));
+        let learner = services::node(&learner_node_name(&svc.run_id)).unwrap();
+        let ports = ports::LearnerPorts::open(&learner, &svc, actors, 4).unwrap();
+        let row = TransitionRow {
+            obs_dim: 3,
+            act_dim: 1,
+        };
+        let mut workers = vec![];
+        for w in 0..2 * actors {
+            let node = services::node(&format!(
+                "{}-{w}",
+                worker_node_name(&svc.run_id, w % actors)
+            ))
+            .unwrap();
+            let control = ports::WorkerPorts::control(&node, &svc).unwrap();
+            let opened =
+                ports::WorkerPorts::open(&node, &svc, control, w % actors, actors, row.len());
+            assert!(
+                opened.is_ok(),
+                "worker {w} of {}: {:?}",
+                2 * actors,
+                opened.err()
+            );
+            workers.push((node, opened));
+        }
+        drop(ports);
+    }
+
+    /// The learner waking every worker: room for twice the most actors a run may have.
+    #[test]
+    fn the_wake_up_call_reaches_twice_the_most_actors() {
+        let svc = Services::new(&run_id("wake"));
+        let learner = services::node(&learner_node_name(&svc.run_id)).unwrap();
+        let _notifier = services::to_workers(&learner, &svc)
+            .unwrap()
+            .notifier_builder()
+            .create()
+            .unwrap();
+        let listeners: Vec<_> = (0..2 * MAX_ACTORS)
+            .map(|w| {
+                let node = services::node(&format!("w{w}-{}", svc.run_id)).unwrap();
+                let l = services::to_workers(&node, &svc)
+                    .unwrap_or_else(|e| panic!("worker {w}: {e}"))
+                    .listener_builder()
+                    .create()
+                    .unwrap_or_else(|e| panic!("worker {w}: {e}"));
+                (node, l)
+            })
+            .collect();
+        assert_eq!(listeners.len(), 2 * MAX_ACTORS);
+    }
+
+    /// While the learner is busy (a long update), every worker may report a few times: the
+    /// reports service keeps four per actor at the most actors, none dropped.
+    #[test]
+    fn reports_wait_for_a_busy_learner_four_per_actor() {
+        use iceoryx2::prelude::BackpressureStrategy;
+        let svc = Services::new(&run_id("reports"));
+        let learner = services::node(&learner_node_name(&svc.run_id)).unwrap();
+        let subscriber = services::reports(&learner, &svc, 2)
+            .unwrap()
+            .subscriber_builder()
+            .create()
+            .unwrap();
+        let worker = services::node(&worker_node_name(&svc.run_id, 0)).unwrap();
+        // Discard instead of the default wait, so that too small a buffer fails, not hangs.
+        let publisher = services::reports(&worker, &svc, 2)
+            .unwrap()
+            .publisher_builder()
+            .backpressure_strategy(BackpressureStrategy::DiscardData)
+            .create()
+            .unwrap();
+        let n = 4 * MAX_ACTORS;
+        for e in 0..n {
+            let r = Report {
+                epoch: e as u64,
+                ..report(Handshake::ours("pendulum", 7, 3, 1))
+            };
+            publisher.send_copy(r).unwrap();
+        }
+        let mut epochs = vec![];
+        while let Some(r) = subscriber.receive().unwrap() {
+            epochs.push(r.payload().epoch);
+        }
+        assert_eq!(epochs, (0..n as u64).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn waiting_for_a_wake_up_sleeps_until_one_comes_or_the_timeout() {
+        use std::time::{Duration, Instant};
+        let svc = Services::new(&run_id("wait"));
+        let node = services::node(&learner_node_name(&svc.run_id)).unwrap();
+        let event = services::to_learner(&node, &svc, 1).unwrap();
+        let listener = event.listener_builder().create().unwrap();
+        let notifier = event.notifier_builder().create().unwrap();
+        let start = Instant::now();
+        wait_for_wake(&listener, Duration::from_millis(200)).unwrap();
+        assert!(
+            start.elapsed() >= Duration::from_millis(190),
+            "nothing came: it waits out the timeout ({:?})",
+            start.elapsed()
+        );
+        notifier.notify().unwrap();
+        let start = Instant::now();
+        wait_for_wake(&listener, Duration::from_secs(10)).unwrap();
+        assert!(
+            start.elapsed() < Duration::from_secs(5),
+            "a wake-up ends the wait"
+        );
+    }
 }
 
 /// Opening the run's services with the same settings on both sides (iceoryx2 checks they agree).
