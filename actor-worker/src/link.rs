@@ -260,3 +260,304 @@ pub fn learner_alive(run_id: &str) -> Result<bool> {
     .context("listing iceoryx2 nodes")?;
     Ok(alive)
 }
+
+#[cfg(test)]
+mod tests {
+    //! The worker's side against the learner's real ports (iceoryx2, in this process): what it
+    //! takes from the learner and what it sends back, field by field.
+    use super::*;
+    use selkd_protocol::{services, LearnerPorts, Name, ProtocolError, WeightsHeader, MAX_ACTORS};
+
+    const LAYOUT: (usize, usize, [usize; 1]) = (3, 1, [4]);
+
+    fn args(run_id: &str, worker: usize, connect_timeout: f64) -> Args {
+        Args {
+            run_id: run_id.into(),
+            worker,
+            env: "pendulum".into(),
+            env_options: "{}".into(),
+            generation: 3,
+            connect_timeout,
+        }
+    }
+
+    fn control(actors: u32, stop: u32) -> Control {
+        let mut hidden = [0; selkd_protocol::MAX_HIDDEN_LAYERS];
+        hidden[0] = LAYOUT.2[0] as u32;
+        Control {
+            protocol_version: selkd_protocol::PROTOCOL_VERSION,
+            actors,
+            env: Name::new("pendulum"),
+            env_options: 7,
+            obs_dim: LAYOUT.0 as u32,
+            act_dim: LAYOUT.1 as u32,
+            seed: 1,
+            hidden,
+            hidden_layers: 1,
+            warmup_steps: 0,
+            weights_version: 0,
+            max_policy_lag: 1,
+            eval_epoch: 0,
+            eval_episodes: 1,
+            exploration_noise: 0.0,
+            stop,
+            budget: [0; MAX_ACTORS],
+        }
+    }
+
+    fn ours() -> Handshake {
+        Handshake::ours("pendulum", 7, LAYOUT.0, LAYOUT.1)
+    }
+
+    fn num_params() -> usize {
+        ActorLayout::new(LAYOUT.0, LAYOUT.1, &LAYOUT.2).num_params()
+    }
+
+    /// Distinct values per version, so a test sees which weights the worker holds.
+    fn params(version: u64) -> Vec<f32> {
+        (0..num_params())
+            .map(|i| version as f32 + i as f32 * 1e-3)
+            .collect()
+    }
+
+    fn send_weights(ports: &LearnerPorts, actor: usize, version: u64) {
+        let p = params(version);
+        let mut s = ports.weights[actor].loan_slice_uninit(p.len()).unwrap();
+        *s.user_header_mut() = WeightsHeader {
+            actor: actor as u32,
+            version,
+        };
+        s.write_from_slice(&p).send().unwrap();
+    }
+
+    /// The learner's node and ports for a run of 2 actors, its control announced.
+    fn learner(test: &str) -> (Services, Node, LearnerPorts) {
+        let svc = Services::new(&format!("w{}-{test}", std::process::id()));
+        let node = services::node(&selkd_protocol::learner_node_name(&svc.run_id)).unwrap();
+        let ports = LearnerPorts::open(&node, &svc, 2, num_params()).unwrap();
+        ports.control.send_copy(control(2, 0)).unwrap();
+        (svc, node, ports)
+    }
+
+    /// What the worker (in its own thread: iceoryx2's ports stay in the thread that made them)
+    /// tells the test.
+    #[derive(Debug)]
+    enum Seen {
+        Weights(u64, Vec<f32>, Box<Control>),
+        Done,
+        Takeover(Option<u64>, Option<u64>),
+        Cursor(CursorHeader, Vec<f32>),
+    }
+
+    /// Plays the learner's part while waiting for the worker's next word: it connects late
+    /// subscribers (they get the control and weights from the publishers' history), as the
+    /// learner's loop does.
+    fn next(ports: &LearnerPorts, from: &std::sync::mpsc::Receiver<Seen>) -> Seen {
+        let start = Instant::now();
+        loop {
+            ports.connect_latecomers().unwrap();
+            match from.recv_timeout(Duration::from_millis(10)) {
+                Ok(seen) => return seen,
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                    assert!(
+                        start.elapsed() < Duration::from_secs(30),
+                        "the worker is stuck"
+                    )
+                }
+                Err(e) => panic!("the worker thread failed: {e}"),
+            }
+        }
+    }
+
+    /// Joins worker `worker` of the run in a thread and returns its error, classified.
+    fn join_error(ports: &LearnerPorts, svc: &Services, worker: usize, ours: Handshake) -> String {
+        let run_id = svc.run_id.clone();
+        let t = std::thread::spawn(move || {
+            let svc = Services::new(&run_id);
+            let args = args(&run_id, worker, 0.3);
+            let node = services::node(&format!("wj-{worker}-{run_id}")).unwrap();
+            match Link::join(&args, &node, &svc, ours) {
+                Ok(_) => "joined".to_string(),
+                Err(e) if e.downcast_ref::<ProtocolError>().is_some() => format!("protocol: {e}"),
+                Err(e) if e.downcast_ref::<CannotJoin>().is_some() => format!("cannot join: {e}"),
+                Err(e) => format!("other: {e}"),
+            }
+        });
+        while !t.is_finished() {
+            ports.connect_latecomers().unwrap();
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        t.join().unwrap()
+    }
+
+    #[test]
+    fn a_worker_takes_the_learners_orders_and_weights_and_sends_back_what_it_did() {
+        let (svc, _learner_node, ports) = learner("link");
+        send_weights(&ports, 0, 4);
+        send_weights(&ports, 1, 5);
+        let (to_test, from_worker) = std::sync::mpsc::channel();
+        let (go, wait_go) = std::sync::mpsc::channel::<()>();
+        let run_id = svc.run_id.clone();
+        let worker = std::thread::spawn(move || {
+            let svc = Services::new(&run_id);
+            let args = args(&run_id, 1, 5.0);
+            let node = services::node(&selkd_protocol::worker_node_name(&run_id, 1)).unwrap();
+            let mut link = Link::join(&args, &node, &svc, ours()).unwrap();
+            let held = |link: &Link| {
+                Seen::Weights(
+                    link.weights_version,
+                    link.policy().params().to_vec(),
+                    Box::new(link.control),
+                )
+            };
+            to_test.send(held(&link)).unwrap();
+            wait_go.recv().unwrap();
+            link.receive().unwrap();
+            to_test.send(held(&link)).unwrap();
+            link.report(ReportKind::Evaluation, 4, 5, 1.5, 0.25)
+                .unwrap();
+            let row: Vec<f32> = (0..9).map(|v| v as f32).collect();
+            for warmup in [false, true] {
+                let taken = Taken {
+                    episode: 2,
+                    step: 7,
+                    warmup,
+                    episode_return: -3.5,
+                };
+                link.publish(&taken, &row).unwrap();
+            }
+            to_test.send(Seen::Done).unwrap();
+            wait_go.recv().unwrap();
+            let first = link.newer_cursor().unwrap();
+            to_test
+                .send(Seen::Takeover(first, link.newer_cursor().unwrap()))
+                .unwrap();
+            wait_go.recv().unwrap();
+            let (h, actions) = link.wait_for_cursor().unwrap();
+            to_test.send(Seen::Cursor(h, actions)).unwrap();
+        });
+
+        // It joins with its own actor's latest weights (not another actor's) and the orders.
+        let Seen::Weights(version, p, c) = next(&ports, &from_worker) else {
+            panic!()
+        };
+        assert_eq!((version, p), (5, params(5)));
+        assert_eq!((c.actors, c.stop), (2, 0));
+
+        // News (new weights, a stop), taken in by `receive`.
+        send_weights(&ports, 1, 6);
+        ports.control.send_copy(control(2, 1)).unwrap();
+        go.send(()).unwrap();
+        let Seen::Weights(version, p, c) = next(&ports, &from_worker) else {
+            panic!()
+        };
+        assert_eq!((version, p), (6, params(6)));
+        assert_eq!(c.stop, 1);
+
+        // A report carries the worker's identity, its handshake and the evaluation; a transition
+        // the row as given, its place and the policy that chose its action (0 for a warm-up
+        // draw). Each wakes the learner.
+        assert!(matches!(next(&ports, &from_worker), Seen::Done));
+        let r = *ports
+            .reports
+            .receive()
+            .unwrap()
+            .expect("a report")
+            .payload();
+        assert_eq!(r.kind, ReportKind::Evaluation);
+        assert_eq!((r.worker, r.generation), (1, 3));
+        assert_ne!(r.incarnation, 0);
+        assert_eq!(r.handshake(), ours());
+        assert_eq!((r.weights_version, r.epoch, r.episodes), (6, 4, 5));
+        assert_eq!((r.mean_return, r.success_rate), (1.5, 0.25));
+        for warmup in [false, true] {
+            let s = ports.transitions.receive().unwrap().expect("a transition");
+            let h = *s.user_header();
+            assert_eq!(
+                s.payload(),
+                &(0..9).map(|v| v as f32).collect::<Vec<_>>()[..]
+            );
+            assert_eq!(
+                (h.worker, h.generation, h.incarnation),
+                (1, 3, r.incarnation)
+            );
+            assert_eq!((h.episode, h.step, h.episode_return), (2, 7, -3.5));
+            assert_eq!(h.policy_version, if warmup { 0 } else { 6 });
+            assert_eq!((h.obs_dim, h.act_dim), (3, 1));
+        }
+        let mut wakes = 0;
+        ports.wake.try_wait(|_| wakes += 1).unwrap();
+        assert!(wakes > 0, "the learner is woken");
+
+        // A cursor for another process of this actor is news of a takeover (once).
+        let cursor = |incarnation| CursorHeader {
+            worker: 1,
+            incarnation,
+            sent: 12,
+            episode: 1,
+            step: 2,
+        };
+        ports
+            .send_cursor(cursor(r.incarnation + 1), &[0.5])
+            .unwrap();
+        go.send(()).unwrap();
+        let Seen::Takeover(first, second) = next(&ports, &from_worker) else {
+            panic!()
+        };
+        assert_eq!((first, second), (Some(r.incarnation + 1), None));
+        // Its own cursor ends the wait (a hello is said meanwhile).
+        ports
+            .send_cursor(cursor(r.incarnation), &[0.25, -0.75])
+            .unwrap();
+        go.send(()).unwrap();
+        let Seen::Cursor(h, actions) = next(&ports, &from_worker) else {
+            panic!()
+        };
+        assert_eq!(
+            (h.incarnation, h.sent, h.episode, h.step),
+            (r.incarnation, 12, 1, 2)
+        );
+        assert_eq!(actions, vec![0.25, -0.75]);
+        let hello = *ports.reports.receive().unwrap().expect("a hello").payload();
+        assert_eq!(
+            (hello.kind, hello.worker, hello.incarnation),
+            (ReportKind::Hello, 1, r.incarnation)
+        );
+        worker.join().unwrap();
+
+        assert!(learner_alive(&svc.run_id).unwrap());
+        assert!(!learner_alive(&format!("{}-other", svc.run_id)).unwrap());
+    }
+
+    #[test]
+    fn a_worker_that_cannot_join_says_why() {
+        // No learner at all.
+        let svc = Services::new(&format!("w{}-none", std::process::id()));
+        let args = args(&svc.run_id, 0, 0.2);
+        let node = services::node(&format!("wj-{}", svc.run_id)).unwrap();
+        let e = Link::join(&args, &node, &svc, ours())
+            .err()
+            .expect("no learner");
+        assert!(e.to_string().contains("no learner for run"), "{e}");
+
+        let (svc, _node, ports) = learner("refuse");
+        // Another env's worker: the handshake's error, naming both sides.
+        let e = join_error(&ports, &svc, 0, Handshake::ours("hopper", 7, 11, 3));
+        assert!(e.starts_with("protocol:") && e.contains("hopper"), "{e}");
+        // An index past the run's actors.
+        let e = join_error(&ports, &svc, 2, ours());
+        assert!(
+            e.starts_with("cannot join:") && e.contains("the run has 2 actors (0..1)"),
+            "{e}"
+        );
+        // Announced, but no weights for this actor.
+        send_weights(&ports, 0, 1);
+        let e = join_error(&ports, &svc, 1, ours());
+        assert!(
+            e.starts_with("other:") && e.contains("sent no weights for actor 1"),
+            "{e}"
+        );
+        let e = join_error(&ports, &svc, 0, ours());
+        assert_eq!(e, "joined");
+    }
+}
