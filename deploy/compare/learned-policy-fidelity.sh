@@ -8,6 +8,8 @@
 # table. Not a test: a measurement to run by hand (docs/results/fidelity.md).
 #   bash deploy/compare/learned-policy-fidelity.sh [TASK] [SEEDS] [STEPS] [OUT]
 #   JOBS=2 bash deploy/compare/learned-policy-fidelity.sh halfcheetah 3 30000 /work/fidelity-runs
+# SUBSTEPS=S ITERATIONS=I train at another setting than the shipped one (a candidate), into
+# OUT/TASK-SxI, and replay 10x finer than it (10 S substeps, I iterations).
 # Our SAC as in deploy/compare/sac-vs-sb3.sh (SB3's sizes: [256, 256], batch 256, one update per
 # env step, 256 warm-up steps). Resumable: a seed whose seed-N.fine.json exists is skipped; a
 # training run interrupted midway starts again. JOBS runs at a time (default 1), one thread each.
@@ -16,7 +18,7 @@ cd "$(dirname "$0")/../.."
 task=${1:-halfcheetah}
 seeds=${2:-3}
 steps=${3:-30000}
-out=${4:-runs/learned-policy-fidelity}/$task
+out=${4:-runs/learned-policy-fidelity}
 jobs=${JOBS:-1}
 selkd=${SELKD_BIN:-target/release/selkd}
 [ -x "$selkd" ] || { echo "learned-policy-fidelity: build first: cargo build --release" >&2; exit 1; }
@@ -28,9 +30,19 @@ case "$task" in
     humanoid) substeps=2 ;;
     *) echo "learned-policy-fidelity: TASK is one of hopper, walker2d, halfcheetah, ant, humanoid (got $task)" >&2; exit 2 ;;
 esac
-fine=$((10 * substeps))
 grep -q "substeps: $substeps," "envs/src/$task.rs" \
     || { echo "learned-policy-fidelity: $task no longer ships $substeps substeps; update this script" >&2; exit 1; }
+# A candidate setting: trained with these [env_options], in a directory of its own.
+setting=()
+if [ -n "${SUBSTEPS:-}${ITERATIONS:-}" ]; then
+    substeps=${SUBSTEPS:-$substeps}
+    setting=(--set env_options.substeps="$substeps")
+    [ -n "${ITERATIONS:-}" ] && setting+=(--set env_options.solver_iterations="$ITERATIONS")
+    out=$out/$task-${substeps}x${ITERATIONS:-shipped}
+else
+    out=$out/$task
+fi
+fine=$((10 * substeps))
 mkdir -p "$out"
 one() {
     local s=$1 d="$out/seed-$1"
@@ -39,13 +51,15 @@ one() {
         --set run.env="$task" --set run.seed="$s" --set run.total_env_steps="$steps" \
         --set run.threads=1 --set algo.hidden=[256,256] --set algo.batch_size=256 \
         --set algo.warmup_steps=256 --set eval.epoch_env_steps=$((steps / 10)) \
-        --set eval.episodes=5 > "$d.log" 2>&1 \
+        --set eval.episodes=5 $setting_text > "$d.log" 2>&1 \
         || { echo "learned-policy-fidelity: seed $s failed; see $d.log" >&2; return 1; }
     "$selkd" eval "$d" --episodes 10 --json > "$out/seed-$s.coarse.json"
     "$selkd" eval "$d" --episodes 10 --json --env-options "substeps = $fine" > "$out/seed-$s.fine.json.partial"
     mv "$out/seed-$s.fine.json.partial" "$out/seed-$s.fine.json"
 }
-export -f one; export out task steps fine selkd
+# The setting's words (no spaces inside any) for the xargs shells, which get no arrays.
+export -f one; export out task steps fine selkd; export setting_text="${setting[*]}"
+
 for s in $(seq 1 "$seeds"); do
     [ -f "$out/seed-$s.fine.json" ] || echo "$s"
 done | xargs -r -P "$jobs" -I{} bash -c 'one {}'
