@@ -16,24 +16,31 @@ test stages in order until one fails (caught) or all pass (missed):
 
 Resumable: mutants already in OUT are skipped. The file is restored after each mutant (and on
 Ctrl-C); it refuses to start with uncommitted changes in the mutated files. Outcomes: caught
-(with the stage that caught it), missed, unviable (does not build), timeout (counts as caught).
+(with the stage that caught it), missed, unviable (does not build), timeout (a stage ran past
+--timeout; counts as caught). A build past --build-timeout stops the reading without a row: on a
+machine that busy the outcome would say nothing about the mutant.
 `deploy/mutants.sh` is the learner's in-package reading; docs/mutants.md records both.
 """
 import argparse
 import csv
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
 
 
 def sh(cmd, timeout):
+    """Runs `cmd`: "ok", "fail", or "timeout" (then its whole process group is killed, so no
+    cargo or test binary outlives it holding the build lock or the ports)."""
+    p = subprocess.Popen(cmd, shell=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         start_new_session=True)
     try:
-        r = subprocess.run(cmd, shell=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                           timeout=timeout)
-        return "ok" if r.returncode == 0 else "fail"
+        return "ok" if p.wait(timeout=timeout) == 0 else "fail"
     except subprocess.TimeoutExpired:
+        os.killpg(p.pid, signal.SIGKILL)
+        p.wait()
         return "timeout"
 
 
@@ -44,7 +51,8 @@ def main():
     p.add_argument("--build", required=True, help="shell command that rebuilds what the tests run")
     p.add_argument("--stage", action="append", required=True, help="a test command; first failing one catches")
     p.add_argument("--re", default="", help="only mutants whose name contains this text")
-    p.add_argument("--timeout", type=int, default=600, help="seconds per build or stage")
+    p.add_argument("--timeout", type=int, default=600, help="seconds per stage")
+    p.add_argument("--build-timeout", type=int, default=3600, help="seconds per build")
     a = p.parse_args()
 
     mutants = [m for m in json.load(open(a.mutants)) if a.re in m["name"]]
@@ -68,7 +76,13 @@ def main():
             try:
                 subprocess.run(["patch", "-s", "-p0", m["file"]], input=m["diff"], text=True, check=True)
                 outcome, stage = "unviable", ""
-                if sh(a.build, a.timeout) == "ok":
+                built = sh(a.build, a.build_timeout)
+                if built == "timeout":
+                    # A build that does not finish says the machine is too busy, not that the
+                    # mutant does not compile: record nothing and stop.
+                    sys.exit(f"mutants_e2e: building {m['name']} took over {a.build_timeout} s; "
+                             "the machine is too busy (or raise --build-timeout); run again to continue")
+                if built == "ok":
                     outcome = "missed"
                     for n, cmd in enumerate(a.stage, 1):
                         r = sh(cmd, a.timeout)
@@ -82,7 +96,7 @@ def main():
             f.flush()
             print(f"[{i + 1}/{len(todo)}] {outcome:8} {stage:2} {secs:4}s {m['name']}", flush=True)
     # Leave the binaries built from the unmutated source.
-    sh(a.build, a.timeout)
+    sh(a.build, a.build_timeout)
 
 
 if __name__ == "__main__":
