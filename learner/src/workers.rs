@@ -180,3 +180,91 @@ fn live_workers(run_id: &str, k: usize) -> Result<Vec<bool>> {
     .map_err(|e| anyhow!("listing iceoryx2 nodes: {e:?}"))?;
     Ok(alive)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use selkd_protocol::{services, Services};
+
+    fn run_id(test: &str) -> String {
+        format!("l{}-{test}", std::process::id())
+    }
+
+    #[test]
+    fn a_gone_worker_gives_its_unused_grant_back_and_the_others_keep_theirs() {
+        let run = run_id("gone");
+        let mut ws = Workers::new(5, Duration::from_secs(10), None);
+        let long_ago = Instant::now() - 2 * QUIET;
+        // 0: quiet, unused grant, node alive (stopped or busy): keeps it.
+        // 1: quiet, unused grant, no node (killed): gives it back.
+        // 2: quiet, no node, but its grant is used up: nothing to give.
+        // 3: no node, unused grant, but heard just now: not quiet.
+        // 4: quiet, no node, unused grant, but never joined (still starting): not looked at.
+        ws.accepting = vec![Some(10), Some(11), Some(12), Some(13), None];
+        ws.granted = vec![100; 5];
+        for (w, sent) in [40, 40, 100, 40, 40].into_iter().enumerate() {
+            ws.rollouts[w].sent = sent;
+        }
+        ws.last_heard = vec![long_ago, long_ago, long_ago, Instant::now(), long_ago];
+        let _alive = services::node(&selkd_protocol::worker_node_name(&run, 0)).unwrap();
+        ws.take_back_grants_of_gone_workers(&run);
+        assert_eq!(ws.granted, vec![100, 40, 100, 100, 100]);
+        assert_eq!(ws.benched, vec![false, true, false, false, false]);
+        // Heard from again (its successor joined): no longer benched.
+        ws.heard(1);
+        assert!(!ws.benched[1]);
+        assert!(ws.last_heard[1].elapsed() < QUIET);
+    }
+
+    /// The grants' arithmetic is `rate_limit::top_up`'s; here, who takes: not a benched worker,
+    /// nor a quiet one holding an unused grant. Expected values worked out by hand.
+    #[test]
+    fn grants_go_to_the_workers_that_can_take_them() {
+        let mut ws = Workers::new(3, Duration::from_secs(10), None);
+        ws.benched[1] = true;
+        // Takers 0 and 2 share an allowance of 10: 5 each.
+        assert_eq!(ws.top_up_grants(10, 1000), &[5, 0, 5]);
+        assert_eq!(ws.grant_turn, 1);
+        // Worker 0 used its 5; worker 2 holds its 5 and went quiet: only worker 0 takes, up to
+        // the allowance less what worker 2 holds.
+        ws.rollouts[0].sent = 5;
+        ws.last_heard[2] = Instant::now() - 2 * QUIET;
+        assert_eq!(ws.top_up_grants(10, 1000), &[10, 0, 5]);
+        assert_eq!(ws.grant_turn, 2);
+        // A worker heard from recently takes even while it holds some of its grant.
+        ws.heard(2);
+        ws.benched[1] = false;
+        ws.top_up_grants(30, 1000);
+        assert_eq!(ws.grant_turn, 0, "the round-robin's start turns");
+        assert!(ws.granted.iter().all(|&g| g > 0), "{:?}", ws.granted);
+    }
+
+    #[test]
+    fn a_worker_waiting_for_its_cursor_gets_the_records_end_and_is_accepted() {
+        let svc = Services::new(&run_id("cursor"));
+        let node = services::node(&proto::learner_node_name(&svc.run_id)).unwrap();
+        let ports = LearnerPorts::open(&node, &svc, 2, 4).unwrap();
+        let worker = services::node(&proto::worker_node_name(&svc.run_id, 1)).unwrap();
+        let cursors = services::cursor(&worker, &svc, 1)
+            .unwrap()
+            .subscriber_builder()
+            .create()
+            .unwrap();
+        let mut ws = Workers::new(2, Duration::from_secs(10), None);
+        ws.rollouts[1] = Rollout {
+            sent: 7,
+            episode: 2,
+            step: 3,
+            actions: vec![0.5, -0.5, 0.25],
+        };
+        ws.cursor_due[1] = Some(42);
+        ws.send_due_cursors(&ports).unwrap();
+        let s = cursors.receive().unwrap().expect("worker 1's cursor");
+        let h = *s.user_header();
+        assert_eq!((h.worker, h.incarnation), (1, 42));
+        assert_eq!((h.sent, h.episode, h.step), (7, 2, 3));
+        assert_eq!(s.payload(), &[0.5, -0.5, 0.25]);
+        assert_eq!(ws.accepting, vec![None, Some(42)]);
+        assert_eq!(ws.cursor_due, vec![None, None]);
+    }
+}
