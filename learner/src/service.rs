@@ -1137,10 +1137,13 @@ mod tests {
     use super::*;
 
     fn learner(mode: Mode) -> (Learner, PathBuf) {
+        // A directory per call: the tests run in parallel.
+        static CALLS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
         let dir = std::env::temp_dir().join(format!(
-            "selkd-service-test-{}-{:?}",
+            "selkd-service-test-{}-{:?}-{}",
             std::process::id(),
-            mode
+            mode,
+            CALLS.fetch_add(1, Ordering::Relaxed)
         ));
         let mut cfg = Config::default();
         cfg.run.mode = mode;
@@ -1292,6 +1295,95 @@ mod tests {
         assert_eq!((l.stats.inserted, l.stats.lockstep_rounds), (2, 1));
         let stored = Vec::<f32>::try_from(l.replay.export().select(1, 0)).unwrap();
         assert_eq!(stored, vec![0.0, 10.0], "actor 0's step, then actor 1's");
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[test]
+    fn an_epochs_row_waits_for_every_actors_evaluation_and_carries_the_steps_it_ended_at() {
+        let mut e = Epochs::from_resumed(None, 2);
+        assert!(e.evals_in());
+        e.eval_epoch = 2;
+        e.epoch_ends = VecDeque::from([(1, 1003), (2, 2005)]);
+        assert!(!e.evals_in());
+        assert!(e.evaluation(0, 1, f64::NAN));
+        assert!(!e.evaluation(0, 1, f64::NAN), "counted once");
+        assert!(!e.evaluation(0, 0, f64::NAN), "an older epoch");
+        assert_eq!(
+            e.next_to_log(1000),
+            None,
+            "actor 1 has not reported epoch 1"
+        );
+        assert!(e.evaluation(1, 2, 0.5));
+        assert_eq!(e.eval_success[1], (2, 0.5));
+        assert_eq!(e.next_to_log(1000), Some((1, 1003)));
+        assert_eq!(e.next_to_log(1000), None, "epoch 2 waits for actor 0");
+        assert!(!e.evals_in());
+        assert!(e.evaluation(0, 2, f64::NAN));
+        assert!(e.evals_in());
+        assert_eq!(e.next_to_log(1000), Some((2, 2005)));
+        assert_eq!(e.next_to_log(1000), None);
+        // An epoch whose end is not on record: its multiple of the epoch length.
+        e.eval_epoch = 3;
+        e.evaluation(0, 3, f64::NAN);
+        e.evaluation(1, 3, f64::NAN);
+        assert_eq!(e.next_to_log(1000), Some((3, 3000)));
+    }
+
+    #[test]
+    fn a_hello_asks_for_a_cursor_an_evaluation_scores_its_actor_and_strangers_are_ignored() {
+        let (mut l, dir) = learner(Mode::Async);
+        let ours = l.handshake();
+        let hello = |worker, h: Handshake, incarnation| proto::Report {
+            kind: ReportKind::Hello,
+            worker,
+            generation: 0,
+            incarnation,
+            protocol_version: h.protocol_version,
+            env: h.env,
+            env_options: h.env_options,
+            obs_dim: h.obs_dim,
+            act_dim: h.act_dim,
+            weights_version: 0,
+            epoch: 0,
+            episodes: 0,
+            mean_return: f64::NAN,
+            success_rate: f64::NAN,
+        };
+        l.workers.benched[1] = true;
+        l.on_report(&hello(1, ours, 9));
+        assert_eq!(l.workers.cursor_due, vec![None, Some(9)]);
+        assert!(!l.workers.benched[1], "heard from");
+        // Another env's worker gets no cursor; nor does a worker index past the run's actors.
+        l.on_report(&hello(
+            0,
+            Handshake::ours("hopper", ours.env_options, 11, 3),
+            5,
+        ));
+        l.on_report(&hello(2, ours, 4));
+        assert_eq!(l.workers.cursor_due, vec![None, Some(9)]);
+        // An evaluation scores its actor, once per epoch.
+        let eval = proto::Report {
+            kind: ReportKind::Evaluation,
+            epoch: 1,
+            mean_return: -150.0,
+            success_rate: 0.25,
+            ..hello(0, ours, 7)
+        };
+        l.on_report(&eval);
+        assert_eq!(l.ranking.scores()[0], Some(-150.0));
+        assert_eq!(l.epochs.eval_reported, vec![1, 0]);
+        assert_eq!(l.epochs.eval_success[0], (1, 0.25));
+        l.on_report(&proto::Report {
+            mean_return: 99.0,
+            ..eval
+        });
+        assert_eq!(l.ranking.scores()[0], Some(-150.0), "the same epoch again");
+        l.on_report(&proto::Report {
+            epoch: 2,
+            mean_return: -120.0,
+            ..eval
+        });
+        assert_eq!(l.ranking.scores()[0], Some(-120.0));
         let _ = std::fs::remove_dir_all(dir);
     }
 }
