@@ -11,7 +11,7 @@ use clap::Parser;
 use link::{learner_alive, Link};
 use rollout::{env_failed, Rollout};
 use selkd_policy::evaluation;
-use selkd_protocol::{services, Handshake, ReportKind, Services};
+use selkd_protocol::{services, Control, Handshake, ReportKind, Services};
 use std::time::{Duration, Instant};
 
 #[derive(Parser, Debug)]
@@ -107,7 +107,14 @@ fn run(args: &Args) -> Result<()> {
     loop {
         link.receive()?;
         let control = link.control;
-        if control.stop != 0 {
+        let next = next_move(
+            &control,
+            worker,
+            link.weights_version,
+            evaluated,
+            rollout.sent,
+        );
+        if next == Next::Stop {
             tracing::info!(worker, sent = rollout.sent, "learner asked to stop");
             return Ok(());
         }
@@ -119,17 +126,19 @@ fn run(args: &Args) -> Result<()> {
             );
             return Ok(());
         }
-        if control.eval_epoch > evaluated && link.weights_version >= control.weights_version {
-            evaluate(&mut *eval_env, &link, seed)?;
-            evaluated = control.eval_epoch;
-            continue;
-        }
-        let fresh = link.weights_version + control.max_policy_lag >= control.weights_version;
-        if rollout.sent < control.budget[worker] && fresh {
-            rollout.step(link.policy(), &control, |taken, row| {
-                link.publish(taken, row)
-            })?;
-            continue;
+        match next {
+            Next::Evaluate => {
+                evaluate(&mut *eval_env, &link, seed)?;
+                evaluated = control.eval_epoch;
+                continue;
+            }
+            Next::Step => {
+                rollout.step(link.policy(), &control, |taken, row| {
+                    link.publish(taken, row)
+                })?;
+                continue;
+            }
+            Next::Stop | Next::Wait => {}
         }
         // Nothing allowed yet: sleep until the learner says something.
         link.wait(Duration::from_millis(200))?;
@@ -139,6 +148,42 @@ fn run(args: &Args) -> Result<()> {
                 bail!("the learner of run `{}` is gone; stopping", args.run_id);
             }
         }
+    }
+}
+
+/// What a worker does next under the learner's `control`.
+#[derive(Debug, PartialEq, Eq)]
+enum Next {
+    /// The learner asked the run to stop.
+    Stop,
+    /// Evaluate the epoch the learner announced: one not yet evaluated (`evaluated` is the
+    /// latest done), and only with the weights of that epoch's end or newer.
+    Evaluate,
+    /// Take one env step: within this worker's budget, with weights at most `max_policy_lag`
+    /// versions behind the learner's.
+    Step,
+    /// Nothing allowed yet.
+    Wait,
+}
+
+fn next_move(
+    control: &Control,
+    worker: usize,
+    weights_version: u64,
+    evaluated: u64,
+    sent: u64,
+) -> Next {
+    if control.stop != 0 {
+        return Next::Stop;
+    }
+    if control.eval_epoch > evaluated && weights_version >= control.weights_version {
+        return Next::Evaluate;
+    }
+    let fresh = weights_version + control.max_policy_lag >= control.weights_version;
+    if sent < control.budget[worker] && fresh {
+        Next::Step
+    } else {
+        Next::Wait
     }
 }
 
@@ -173,5 +218,62 @@ fn remove_half_made_nodes() {
             }
         }
         Err(e) => tracing::warn!("looking for half-made iceoryx2 node entries: {e}"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Orders: learner at weights version 5, epoch 2 announced, lag 1, worker 1 may step to 100.
+    fn control() -> Control {
+        let mut budget = [0; selkd_protocol::MAX_ACTORS];
+        budget[1] = 100;
+        Control {
+            protocol_version: selkd_protocol::PROTOCOL_VERSION,
+            actors: 2,
+            env: selkd_protocol::Name::new("pendulum"),
+            env_options: 0,
+            obs_dim: 3,
+            act_dim: 1,
+            seed: 1,
+            hidden: [0; selkd_protocol::MAX_HIDDEN_LAYERS],
+            hidden_layers: 0,
+            warmup_steps: 0,
+            weights_version: 5,
+            max_policy_lag: 1,
+            eval_epoch: 2,
+            eval_episodes: 1,
+            exploration_noise: 0.0,
+            stop: 0,
+            budget,
+        }
+    }
+
+    #[test]
+    fn a_worker_stops_evaluates_steps_or_waits_as_the_orders_say() {
+        let c = control();
+        // (weights held, epoch evaluated, transitions sent) → what it does.
+        assert_eq!(next_move(&c, 1, 5, 1, 0), Next::Evaluate, "epoch 2 is new");
+        assert_eq!(next_move(&c, 1, 6, 1, 0), Next::Evaluate);
+        assert_eq!(next_move(&c, 1, 5, 2, 0), Next::Step, "epoch 2 is done");
+        assert_eq!(next_move(&c, 1, 5, 3, 0), Next::Step);
+        // Not with weights older than the epoch's end: it steps meanwhile (one version behind is
+        // within the lag), and waits when two behind.
+        assert_eq!(next_move(&c, 1, 4, 1, 0), Next::Step);
+        assert_eq!(next_move(&c, 1, 3, 2, 0), Next::Wait);
+        let lag2 = Control {
+            max_policy_lag: 2,
+            ..c
+        };
+        assert_eq!(next_move(&lag2, 1, 3, 2, 0), Next::Step);
+        // Its own budget: 100 for worker 1, none for worker 0.
+        assert_eq!(next_move(&c, 1, 5, 2, 99), Next::Step);
+        assert_eq!(next_move(&c, 1, 5, 2, 100), Next::Wait);
+        assert_eq!(next_move(&c, 0, 5, 2, 0), Next::Wait);
+        // A stop overrides everything.
+        let stop = Control { stop: 1, ..c };
+        assert_eq!(next_move(&stop, 1, 5, 1, 0), Next::Stop);
+        assert_eq!(next_move(&stop, 1, 5, 2, 0), Next::Stop);
     }
 }
