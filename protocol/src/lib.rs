@@ -537,6 +537,25 @@ mod tests {
             )
         );
         assert_eq!(Name::new("pendulum").as_str(), "pendulum");
+        // Sizes where 2 × obs and 2 + obs differ, and every index named.
+        let row = TransitionRow {
+            obs_dim: 3,
+            act_dim: 2,
+        };
+        assert_eq!(row.len(), 11, "s 3, a 2, r, s' 3, two flags");
+        assert!(!row.is_empty());
+        let v: Vec<f32> = (0..11).map(|i| i as f32).collect();
+        let (s, a, r, s2, terminated, truncated) = row.split(&v);
+        assert_eq!((s, a, r, s2), (&v[0..3], &v[3..5], 5.0, &v[6..9]));
+        assert!(terminated && truncated, "9 and 10 are not 0");
+        let names: Vec<String> = (0..11).map(|i| row.field_of(i)).collect();
+        assert_eq!(
+            names,
+            [
+                "s[0]", "s[1]", "s[2]", "a[0]", "a[1]", "r", "s'[0]", "s'[1]", "s'[2]", "flags",
+                "flags"
+            ]
+        );
     }
 
     /// A run id of its own per test: tests run in parallel, and iceoryx2's services are
