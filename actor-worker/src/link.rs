@@ -159,22 +159,20 @@ impl<'a> Link<'a> {
         mean_return: f64,
         success_rate: f64,
     ) -> Result<()> {
-        let ours = &self.ours;
+        let from = Report::hello(
+            self.ours,
+            self.args.worker as u32,
+            self.args.generation,
+            self.incarnation,
+        );
         self.ports.reports.send_copy(Report {
             kind,
-            worker: self.args.worker as u32,
-            generation: self.args.generation,
-            incarnation: self.incarnation,
-            protocol_version: ours.protocol_version,
-            env: ours.env,
-            env_options: ours.env_options,
-            obs_dim: ours.obs_dim,
-            act_dim: ours.act_dim,
             weights_version: self.weights_version,
             epoch,
             episodes,
             mean_return,
             success_rate,
+            ..from
         })?;
         self.ports.to_learner.notify()?;
         Ok(())

@@ -1333,22 +1333,8 @@ mod tests {
     fn a_hello_asks_for_a_cursor_an_evaluation_scores_its_actor_and_strangers_are_ignored() {
         let (mut l, dir) = learner(Mode::Async);
         let ours = l.handshake();
-        let hello = |worker, h: Handshake, incarnation| proto::Report {
-            kind: ReportKind::Hello,
-            worker,
-            generation: 0,
-            incarnation,
-            protocol_version: h.protocol_version,
-            env: h.env,
-            env_options: h.env_options,
-            obs_dim: h.obs_dim,
-            act_dim: h.act_dim,
-            weights_version: 0,
-            epoch: 0,
-            episodes: 0,
-            mean_return: f64::NAN,
-            success_rate: f64::NAN,
-        };
+        let hello =
+            |worker, h: Handshake, incarnation| proto::Report::hello(h, worker, 0, incarnation);
         l.workers.benched[1] = true;
         l.on_report(&hello(1, ours, 9));
         assert_eq!(l.workers.cursor_due, vec![None, Some(9)]);

@@ -380,6 +380,27 @@ impl Control {
 }
 
 impl Report {
+    /// Worker `worker`'s hello (process `incarnation`, of its `generation`) showing handshake
+    /// `h`; an evaluation report is the same with its fields set.
+    pub fn hello(h: Handshake, worker: u32, generation: u32, incarnation: u64) -> Self {
+        Self {
+            kind: ReportKind::Hello,
+            worker,
+            generation,
+            incarnation,
+            protocol_version: h.protocol_version,
+            env: h.env,
+            env_options: h.env_options,
+            obs_dim: h.obs_dim,
+            act_dim: h.act_dim,
+            weights_version: 0,
+            epoch: 0,
+            episodes: 0,
+            mean_return: f64::NAN,
+            success_rate: f64::NAN,
+        }
+    }
+
     pub fn handshake(&self) -> Handshake {
         Handshake {
             protocol_version: self.protocol_version,
@@ -498,22 +519,7 @@ mod tests {
     }
 
     fn report(h: Handshake) -> Report {
-        Report {
-            kind: ReportKind::Hello,
-            worker: 0,
-            generation: 0,
-            incarnation: 1,
-            protocol_version: h.protocol_version,
-            env: h.env,
-            env_options: h.env_options,
-            obs_dim: h.obs_dim,
-            act_dim: h.act_dim,
-            weights_version: 0,
-            epoch: 0,
-            episodes: 0,
-            mean_return: f64::NAN,
-            success_rate: f64::NAN,
-        }
+        Report::hello(h, 0, 0, 1)
     }
 
     #[test]
