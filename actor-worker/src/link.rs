@@ -264,7 +264,7 @@ mod tests {
     //! The worker's side against the learner's real ports (iceoryx2, in this process): what it
     //! takes from the learner and what it sends back, field by field.
     use super::*;
-    use selkd_protocol::{services, LearnerPorts, Name, ProtocolError, WeightsHeader, MAX_ACTORS};
+    use selkd_protocol::{services, LearnerPorts, Name, ProtocolError, WeightsHeader};
 
     const LAYOUT: (usize, usize, [usize; 1]) = (3, 1, [4]);
 
@@ -283,7 +283,6 @@ mod tests {
         let mut hidden = [0; selkd_protocol::MAX_HIDDEN_LAYERS];
         hidden[0] = LAYOUT.2[0] as u32;
         Control {
-            protocol_version: selkd_protocol::PROTOCOL_VERSION,
             actors,
             env: Name::new("pendulum"),
             env_options: 7,
@@ -292,14 +291,10 @@ mod tests {
             seed: 1,
             hidden,
             hidden_layers: 1,
-            warmup_steps: 0,
-            weights_version: 0,
             max_policy_lag: 1,
-            eval_epoch: 0,
             eval_episodes: 1,
-            exploration_noise: 0.0,
             stop,
-            budget: [0; MAX_ACTORS],
+            ..Default::default()
         }
     }
 

@@ -230,23 +230,17 @@ mod tests {
         let mut budget = [0; selkd_protocol::MAX_ACTORS];
         budget[1] = 100;
         Control {
-            protocol_version: selkd_protocol::PROTOCOL_VERSION,
             actors: 2,
             env: selkd_protocol::Name::new("pendulum"),
-            env_options: 0,
             obs_dim: 3,
             act_dim: 1,
             seed: 1,
-            hidden: [0; selkd_protocol::MAX_HIDDEN_LAYERS],
-            hidden_layers: 0,
-            warmup_steps: 0,
             weights_version: 5,
             max_policy_lag: 1,
             eval_epoch: 2,
             eval_episodes: 1,
-            exploration_noise: 0.0,
-            stop: 0,
             budget,
+            ..Default::default()
         }
     }
 

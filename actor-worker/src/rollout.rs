@@ -254,21 +254,13 @@ mod tests {
             protocol_version: 0,
             actors: 1,
             env: selkd_protocol::Name::new("pendulum"),
-            env_options: 0,
             obs_dim: spec.obs_dim as u32,
             act_dim: spec.act_dim as u32,
             seed: 5,
-            hidden: [0; selkd_protocol::MAX_HIDDEN_LAYERS],
-            hidden_layers: 0,
             warmup_steps,
-            weights_version: 0,
-            max_policy_lag: 0,
-            eval_epoch: 0,
-            eval_episodes: 0,
-            exploration_noise: 0.0,
-            stop: 0,
-            budget: [0; selkd_protocol::MAX_ACTORS],
+            ..Default::default()
         };
+
         // 20 warm-up steps, then the policy's, to the end of the 200-step episode.
         let play = |mut r: Rollout, steps| {
             let (mut rows, mut warmup) = (Vec::new(), Vec::new());

@@ -367,6 +367,32 @@ impl std::fmt::Display for Handshake {
     }
 }
 
+/// This build's orders with nothing set: no actors, no env, nothing granted. Tests and tools
+/// set the fields they need on it (`Control { actors: 2, ..Default::default() }`).
+impl Default for Control {
+    fn default() -> Self {
+        Self {
+            protocol_version: PROTOCOL_VERSION,
+            actors: 0,
+            env: Name::default(),
+            env_options: 0,
+            obs_dim: 0,
+            act_dim: 0,
+            seed: 0,
+            hidden: [0; MAX_HIDDEN_LAYERS],
+            hidden_layers: 0,
+            warmup_steps: 0,
+            weights_version: 0,
+            max_policy_lag: 0,
+            eval_epoch: 0,
+            eval_episodes: 0,
+            exploration_noise: 0.0,
+            stop: 0,
+            budget: [0; MAX_ACTORS],
+        }
+    }
+}
+
 impl Control {
     pub fn handshake(&self) -> Handshake {
         Handshake {
@@ -460,23 +486,14 @@ mod tests {
 
     fn control() -> Control {
         Control {
-            protocol_version: PROTOCOL_VERSION,
             actors: 2,
             env: Name::new("pendulum"),
             env_options: 7,
             obs_dim: 3,
             act_dim: 1,
-            seed: 0,
-            hidden: [0; MAX_HIDDEN_LAYERS],
-            hidden_layers: 0,
-            warmup_steps: 0,
-            weights_version: 0,
             max_policy_lag: 1,
-            eval_epoch: 0,
             eval_episodes: 1,
-            exploration_noise: 0.0,
-            stop: 0,
-            budget: [0; MAX_ACTORS],
+            ..Default::default()
         }
     }
 
