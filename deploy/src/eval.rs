@@ -151,7 +151,7 @@ fn run_inner(args: EvalArgs) -> Result<()> {
         format!(
             "making the run's env `{}` with options `{}`",
             cfg.run.env,
-            cfg.env_options.to_string().trim()
+            options_text(&cfg.env_options)
         )
     })?;
     let mut results = vec![];
@@ -185,6 +185,15 @@ fn run_inner(args: EvalArgs) -> Result<()> {
     // A closed pipe is not worth a panic.
     let _ = std::io::stdout().lock().write_all(text.as_bytes());
     Ok(())
+}
+
+/// A run's `[env_options]` on one line: `g = 9.0, substeps = 50`.
+fn options_text(options: &selkd_envs::EnvOptions) -> String {
+    options
+        .iter()
+        .map(|(k, v)| format!("{k} = {v}"))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 fn finite(v: f64) -> serde_json::Value {
@@ -242,11 +251,7 @@ fn table(
     let with_success = results
         .iter()
         .any(|r| r.evaluation.success_rate().is_finite());
-    let options: Vec<String> = cfg
-        .env_options
-        .iter()
-        .map(|(k, v)| format!("{k} = {v}"))
-        .collect();
+    let options = options_text(&cfg.env_options);
     let mut out = format!(
         "{}: env {}{}, {} deterministic episode{} per actor ({})\n",
         checkpoint.display(),
@@ -254,7 +259,7 @@ fn table(
         if options.is_empty() {
             String::new()
         } else {
-            format!(" ({})", options.join(", "))
+            format!(" ({options})")
         },
         seeds.len(),
         if seeds.len() == 1 { "" } else { "s" },
