@@ -795,12 +795,8 @@ mod tests {
     /// no episode falls. Measured: 5.80 m against 5.74 m (1%).
     #[test]
     fn trot_converged() {
-        let fine = SimParams {
-            substeps: 10 * SIM.substeps,
-            ..SIM
-        };
         let (at, fell_at) = trot_episodes(SIM, None, 24);
-        let (ref_, fell_ref) = trot_episodes(fine, None, 24);
+        let (ref_, fell_ref) = trot_episodes(crate::fidelity::finer(SIM), None, 24);
         assert_eq!((fell_at, fell_ref), (0, 0), "the trot does not fall");
         for (what, f) in [
             (
@@ -811,7 +807,7 @@ mod tests {
         ] {
             let (a, b) = (mean(at.iter().map(f)), mean(ref_.iter().map(f)));
             assert!(
-                (a - b).abs() <= 0.15 * b.abs(),
+                crate::fidelity::rel(a, b) <= 0.15,
                 "ant trot {what}: {a:.3} at {SIM:?} vs {b:.3} 10x finer\n{at:?}\n{ref_:?}"
             );
         }

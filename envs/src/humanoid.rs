@@ -1146,13 +1146,7 @@ mod tests {
     #[test]
     fn stance_converged() {
         let at = stance_episodes(SIM, 8);
-        let fine = stance_episodes(
-            SimParams {
-                substeps: 10 * SIM.substeps,
-                ..SIM
-            },
-            8,
-        );
+        let fine = stance_episodes(crate::fidelity::finer(SIM), 8);
         let mean = |e: &[(f64, usize, f32)], f: fn(&(f64, usize, f32)) -> f64| {
             e.iter().map(f).sum::<f64>() / e.len() as f64
         };
@@ -1163,7 +1157,7 @@ mod tests {
         ] {
             let (a, b) = (mean(&at, f), mean(&fine, f));
             assert!(
-                (a - b).abs() <= 0.15 * b.abs(),
+                crate::fidelity::rel(a, b) <= 0.15,
                 "humanoid stance {what}: {a:.3} at {SIM:?} vs {b:.3} 10x finer\n{at:?}\n{fine:?}"
             );
         }
