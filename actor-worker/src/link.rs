@@ -264,7 +264,7 @@ mod tests {
     //! The worker's side against the learner's real ports (iceoryx2, in this process): what it
     //! takes from the learner and what it sends back, field by field.
     use super::*;
-    use selkd_protocol::{services, LearnerPorts, Name, ProtocolError, WeightsHeader};
+    use selkd_protocol::{services, LearnerPorts, Name, ProtocolError};
 
     const LAYOUT: (usize, usize, [usize; 1]) = (3, 1, [4]);
 
@@ -314,13 +314,9 @@ mod tests {
     }
 
     fn send_weights(ports: &LearnerPorts, actor: usize, version: u64) {
-        let p = params(version);
-        let mut s = ports.weights[actor].loan_slice_uninit(p.len()).unwrap();
-        *s.user_header_mut() = WeightsHeader {
-            actor: actor as u32,
-            version,
-        };
-        s.write_from_slice(&p).send().unwrap();
+        ports
+            .publish_actor_weights(actor, version, &params(version))
+            .unwrap();
     }
 
     /// The learner's node and ports for a run of 2 actors, its control announced.

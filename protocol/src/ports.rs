@@ -170,15 +170,25 @@ impl LearnerPorts {
         version: u64,
         weights: impl Fn(usize) -> Vec<f32>,
     ) -> Result<(), Error> {
-        for (i, p) in self.weights.iter().enumerate() {
-            let w = weights(i);
-            let mut sample = p.loan_slice_uninit(w.len())?;
-            *sample.user_header_mut() = WeightsHeader {
-                actor: i as u32,
-                version,
-            };
-            sample.write_from_slice(&w).send()?;
+        for i in 0..self.weights.len() {
+            self.publish_actor_weights(i, version, &weights(i))?;
         }
+        Ok(())
+    }
+
+    /// Actor `actor`'s weights `w`, as `version`.
+    pub fn publish_actor_weights(
+        &self,
+        actor: usize,
+        version: u64,
+        w: &[f32],
+    ) -> Result<(), Error> {
+        let mut sample = self.weights[actor].loan_slice_uninit(w.len())?;
+        *sample.user_header_mut() = WeightsHeader {
+            actor: actor as u32,
+            version,
+        };
+        sample.write_from_slice(w).send()?;
         Ok(())
     }
 
