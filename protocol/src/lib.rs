@@ -571,6 +571,18 @@ mod tests {
         let (s, a, r, s2, terminated, truncated) = row.split(&v);
         assert_eq!((s, a, r, s2), (&v[0..3], &v[3..5], 5.0, &v[6..9]));
         assert!(terminated && truncated, "9 and 10 are not 0");
+        // Each flag read from its own index: every other value is non-zero, so a flag read one
+        // place off (from s' or the other flag) comes out wrong in one of the four cases.
+        let mut v = Vec::new();
+        for (term, trunc) in [(false, false), (true, false), (false, true), (true, true)] {
+            let (s, a, s2) = ([1.0, 2.0, 3.0], [4.0, 5.0], [7.0, 8.0, 9.0]);
+            row.write(&mut v, &s, &a, 6.0, &s2, term, trunc);
+            assert_eq!(
+                row.split(&v),
+                (&s[..], &a[..], 6.0, &s2[..], term, trunc),
+                "terminated {term}, truncated {trunc}"
+            );
+        }
         let names: Vec<String> = (0..11).map(|i| row.field_of(i)).collect();
         assert_eq!(
             names,
