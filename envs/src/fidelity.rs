@@ -270,23 +270,25 @@ fn cheetah_in_air() {
     }
 }
 
-/// The cheetah's sine gait `p` ([`gaits::cheetah_sine`]) for episodes `seeds`.
-fn cheetah_sine_episodes(
+/// The cheetah under `policy(obs, t)` for episodes `seeds`.
+fn cheetah_episodes(
     sim: SimParams,
     tuning: PhysicsTuning,
     seeds: &[u64],
-    p: &[f32],
+    policy: impl Fn(&[f32], usize) -> [f32; 6],
 ) -> Vec<Outcome> {
     let mut env = HalfCheetah::with_sim(sim);
     env.robot.set_tuning(tuning);
     seeds
         .iter()
         .map(|&seed| {
-            env.reset(Some(seed));
+            let mut obs = env.reset(Some(seed));
             let x0 = env.qpos()[0];
             let mut ret = 0.0;
             for t in 0..1000 {
-                ret += env.step(&gaits::cheetah_sine(p, t)).reward;
+                let s = env.step(&policy(&obs, t));
+                ret += s.reward;
+                obs = s.obs;
             }
             Outcome {
                 distance: (env.qpos()[0] - x0) as f64,
@@ -298,15 +300,81 @@ fn cheetah_sine_episodes(
         .collect()
 }
 
-/// How exploitable a cheetah setting is: a search for the open-loop sine gait
-/// ([`gaits::cheetah_sine`], 13 parameters) with the best mean return on seeds 100–101 at the
-/// setting `CLIMB` (default `5x1`), `CLIMB_RANDOM` random samples then `CLIMB_ITERS`
-/// hill-climbing steps from RNG seed `CLIMB_SEED`; then the best gait at that setting and 10×
-/// finer over seeds 0–9 (one table row, as [`table`]'s).
+/// The gaits [`climb_cheetah`] searches: open-loop sines ([`gaits::cheetah_sine`], 13
+/// parameters) or closed-loop sine + PD ([`gaits::cheetah_pd`], 21).
+#[derive(Clone, Copy)]
+enum CheetahGait {
+    Sine,
+    Pd,
+}
+
+impl CheetahGait {
+    fn act(self, p: &[f32], obs: &[f32], t: usize) -> [f32; 6] {
+        match self {
+            CheetahGait::Sine => gaits::cheetah_sine(p, t),
+            CheetahGait::Pd => gaits::cheetah_pd(p, obs, t),
+        }
+    }
+    /// A random gait.
+    fn sample(self, rng: &mut impl rand::Rng) -> Vec<f32> {
+        let pi = std::f32::consts::PI;
+        let mut p = vec![rng.gen_range(0.5..6.0)];
+        match self {
+            CheetahGait::Sine => {
+                p.extend((0..6).map(|_| rng.gen_range(-pi..pi)));
+                p.extend((0..6).map(|_| rng.gen_range(0.0..1.0)));
+            }
+            CheetahGait::Pd => {
+                for _ in 0..6 {
+                    p.extend([
+                        rng.gen_range(-0.5..0.5),
+                        rng.gen_range(0.0..1.0),
+                        rng.gen_range(-pi..pi),
+                    ]);
+                }
+                p.extend([rng.gen_range(1.0..10.0), rng.gen_range(0.0..1.0)]);
+            }
+        }
+        p
+    }
+    /// A hill-climbing step from `p`.
+    fn perturb(self, p: &[f32], rng: &mut impl rand::Rng) -> Vec<f32> {
+        let mut p = p.to_vec();
+        p[0] = (p[0] + 0.2 * rng.gen_range(-1.0..1.0)).clamp(0.3, 8.0);
+        match self {
+            CheetahGait::Sine => {
+                for x in &mut p[1..7] {
+                    *x += 0.3 * rng.gen_range(-1.0f32..1.0);
+                }
+                for x in &mut p[7..] {
+                    *x = (*x + 0.1 * rng.gen_range(-1.0f32..1.0)).clamp(0.0, 1.0);
+                }
+            }
+            CheetahGait::Pd => {
+                for j in 0..6 {
+                    let c = &mut p[1 + 3 * j];
+                    *c = (*c + 0.1 * rng.gen_range(-1.0f32..1.0)).clamp(-1.0, 1.0);
+                    let a = &mut p[2 + 3 * j];
+                    *a = (*a + 0.1 * rng.gen_range(-1.0f32..1.0)).clamp(0.0, 1.5);
+                    p[3 + 3 * j] += 0.3 * rng.gen_range(-1.0f32..1.0);
+                }
+                p[19] = (p[19] + rng.gen_range(-1.0f32..1.0)).clamp(0.5, 20.0);
+                p[20] = (p[20] + 0.1 * rng.gen_range(-1.0f32..1.0)).clamp(0.0, 2.0);
+            }
+        }
+        p
+    }
+}
+
+/// How exploitable a cheetah setting is: a search for the gait with the best mean return on
+/// seeds 100–101 at the setting `CLIMB` (default `5x1`), `CLIMB_RANDOM` random samples then
+/// `CLIMB_ITERS` hill-climbing steps from RNG seed `CLIMB_SEED`, over open-loop sine gaits
+/// (`CLIMB_GAIT=sine`, the default) or sine + PD gaits (`CLIMB_GAIT=pd`); then the best gait at
+/// that setting and 10× finer over seeds 0–9 (one table row, as [`table`]'s).
 #[test]
 #[ignore]
 fn climb_cheetah() {
-    use rand::{Rng, SeedableRng};
+    use rand::SeedableRng;
     let spec = std::env::var("CLIMB").unwrap_or_else(|_| "5x1".into());
     let var = |k: &str, d: u64| std::env::var(k).map_or(d, |v| v.parse().unwrap());
     let (n_random, iters, seed) = (
@@ -314,35 +382,26 @@ fn climb_cheetah() {
         var("CLIMB_ITERS", 200),
         var("CLIMB_SEED", 0),
     );
-    let (sim, tuning) = parse("halfcheetah", &spec);
-    let score = |p: &[f32]| {
-        mean(&cheetah_sine_episodes(sim, tuning, &[100, 101], p), |o| {
-            o.ret
-        })
+    let gait = match std::env::var("CLIMB_GAIT").as_deref() {
+        Ok("pd") => CheetahGait::Pd,
+        Ok("sine") | Err(_) => CheetahGait::Sine,
+        Ok(other) => panic!("CLIMB_GAIT is sine or pd, got {other}"),
     };
+    let (sim, tuning) = parse("halfcheetah", &spec);
+    let episodes = |sim, seeds: &[u64], p: &[f32]| {
+        cheetah_episodes(sim, tuning, seeds, |o, t| gait.act(p, o, t))
+    };
+    let score = |p: &[f32]| mean(&episodes(sim, &[100, 101], p), |o| o.ret);
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
-    let pi = std::f32::consts::PI;
     let mut best: Vec<f32> = vec![];
     let mut best_score = f64::NEG_INFINITY;
     let start = std::time::Instant::now();
-    for _ in 0..n_random {
-        let mut p = vec![rng.gen_range(0.5..6.0)];
-        p.extend((0..6).map(|_| rng.gen_range(-pi..pi)));
-        p.extend((0..6).map(|_| rng.gen_range(0.0..1.0)));
-        let s = score(&p);
-        if s > best_score {
-            (best, best_score) = (p, s);
-        }
-    }
-    for _ in 0..iters {
-        let mut p = best.clone();
-        p[0] = (p[0] + 0.2 * rng.gen_range(-1.0..1.0)).clamp(0.3, 8.0);
-        for x in &mut p[1..7] {
-            *x += 0.3 * rng.gen_range(-1.0f32..1.0);
-        }
-        for x in &mut p[7..] {
-            *x = (*x + 0.1 * rng.gen_range(-1.0f32..1.0)).clamp(0.0, 1.0);
-        }
+    for i in 0..n_random + iters {
+        let p = if i < n_random {
+            gait.sample(&mut rng)
+        } else {
+            gait.perturb(&best, &mut rng)
+        };
         let s = score(&p);
         if s > best_score {
             (best, best_score) = (p, s);
@@ -351,9 +410,9 @@ fn climb_cheetah() {
     let climb_s = start.elapsed().as_secs_f64();
     let seeds: Vec<u64> = (0..10).collect();
     let start = std::time::Instant::now();
-    let at = cheetah_sine_episodes(sim, tuning, &seeds, &best);
+    let at = episodes(sim, &seeds, &best);
     let secs = start.elapsed().as_secs_f64();
-    let fine = cheetah_sine_episodes(finer(sim), tuning, &seeds, &best);
+    let fine = episodes(finer(sim), &seeds, &best);
     let d = |o: &Outcome| o.distance;
     let r = |o: &Outcome| o.ret;
     println!(

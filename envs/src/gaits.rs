@@ -75,3 +75,17 @@ pub fn cheetah_sine(p: &[f32], t: usize) -> [f32; 6] {
     let phase = std::f32::consts::TAU * p[0] * t as f32 * crate::halfcheetah::SIM.control_dt;
     std::array::from_fn(|j| p.get(7 + j).copied().unwrap_or(1.0) * (phase + p[1 + j]).sin())
 }
+
+/// A sine + PD gait for the cheetah (closed loop, as the walker's [`sine_pd`]): joint j tracks
+/// the target c_j + A_j sin(2π f t + φ_j) with a = kp (target − q_j) − kd q̇_j, clipped to
+/// [−1, 1]. `p` = [f Hz, then (c_j, A_j, φ_j) for bthigh … ffoot, kp, kd] (21); `obs` is the
+/// cheetah's (joint angles at 2..8, their velocities at 11..17); `t` counts control steps.
+pub fn cheetah_pd(p: &[f32], obs: &[f32], t: usize) -> [f32; 6] {
+    let phase = std::f32::consts::TAU * p[0] * t as f32 * crate::halfcheetah::SIM.control_dt;
+    let (kp, kd) = (p[19], p[20]);
+    std::array::from_fn(|j| {
+        let (c, amp, phi) = (p[1 + 3 * j], p[2 + 3 * j], p[3 + 3 * j]);
+        let target = c + amp * (phase + phi).sin();
+        (kp * (target - obs[2 + j]) - kd * obs[11 + j]).clamp(-1.0, 1.0)
+    })
+}
