@@ -8,8 +8,9 @@
 # table. Not a test: a measurement to run by hand (docs/results/fidelity.md).
 #   bash deploy/compare/learned-policy-fidelity.sh [TASK] [SEEDS] [STEPS] [OUT]
 #   JOBS=2 bash deploy/compare/learned-policy-fidelity.sh halfcheetah 3 30000 /work/fidelity-runs
-# SUBSTEPS=S ITERATIONS=I train at another setting than the shipped one (a candidate), into
-# OUT/TASK-SxI, and replay 10x finer than it (10 S substeps, I iterations).
+# SUBSTEPS=S ITERATIONS=I PREDICTION=D (any of them) train at another setting than the shipped
+# one (a candidate; D is `[env_options] prediction_distance`, m), into OUT/TASK-SxI[-pD], and
+# replay 10x finer than it (10 S substeps, the same I and D).
 # Our SAC as in deploy/compare/sac-vs-sb3.sh (SB3's sizes: [256, 256], batch 256, one update per
 # env step, 256 warm-up steps). Resumable: a seed whose seed-N.fine.json exists is skipped; a
 # training run interrupted midway starts again. JOBS runs at a time (default 1), one thread each.
@@ -34,11 +35,12 @@ grep -q "substeps: $substeps," "envs/src/$task.rs" \
     || { echo "learned-policy-fidelity: $task no longer ships $substeps substeps; update this script" >&2; exit 1; }
 # A candidate setting: trained with these [env_options], in a directory of its own.
 setting=()
-if [ -n "${SUBSTEPS:-}${ITERATIONS:-}" ]; then
+if [ -n "${SUBSTEPS:-}${ITERATIONS:-}${PREDICTION:-}" ]; then
     substeps=${SUBSTEPS:-$substeps}
     setting=(--set env_options.substeps="$substeps")
     [ -n "${ITERATIONS:-}" ] && setting+=(--set env_options.solver_iterations="$ITERATIONS")
-    out=$out/$task-${substeps}x${ITERATIONS:-shipped}
+    [ -n "${PREDICTION:-}" ] && setting+=(--set env_options.prediction_distance="$PREDICTION")
+    out=$out/$task-${substeps}x${ITERATIONS:-shipped}${PREDICTION:+-p$PREDICTION}
 else
     out=$out/$task
 fi

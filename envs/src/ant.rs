@@ -96,6 +96,7 @@ pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
     substeps: 5,
     solver_iterations: 1,
+    prediction_distance: PREDICTION_DISTANCE,
 };
 const PREDICTION_DISTANCE: f32 = 0.1;
 const INIT_Z: f32 = 0.75;
@@ -204,7 +205,6 @@ impl Default for Ant {
 
 fn build(sim: &SimParams) -> (PhysicsWorld, Articulation) {
     let mut world = new_world(sim);
-    world.integration_parameters.normalized_prediction_distance = PREDICTION_DISTANCE;
     add_floor(&mut world, 1.0);
     let robot = Articulation::build(&mut world, RootJoint::Free, &links());
     (world, robot)
@@ -705,6 +705,7 @@ mod tests {
                 control_dt: CONTROL_DT,
                 substeps,
                 solver_iterations,
+                ..SIM
             };
             let mut env = Ant::with_sim(AntObs::State, sim);
             let start = std::time::Instant::now();

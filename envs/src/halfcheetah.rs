@@ -85,6 +85,7 @@ pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
     substeps: 5,
     solver_iterations: 1,
+    prediction_distance: PREDICTION_DISTANCE,
 };
 /// Rapier's contact prediction distance, m (its default is 2 cm): the cheetah's feet move
 /// fast against 10 ms steps, and contacts found only once a foot is already inside the floor
@@ -186,7 +187,6 @@ impl Default for HalfCheetah {
 
 fn build(sim: &SimParams) -> (PhysicsWorld, Articulation) {
     let mut world = new_world(sim);
-    world.integration_parameters.normalized_prediction_distance = PREDICTION_DISTANCE;
     add_floor(&mut world, FRICTION);
     let robot = Articulation::build(&mut world, RootJoint::Planar, &links());
     // Momentum-conserving free motion (issue 32): see `SIM`.
@@ -447,9 +447,9 @@ mod tests {
     #[ignore]
     fn sim_settings() {
         let sim = |substeps, solver_iterations| SimParams {
-            control_dt: CONTROL_DT,
             substeps,
             solver_iterations,
+            ..SIM
         };
         let mut reference = HalfCheetah::with_sim(sim(50, 1));
         // Start states: every 25th step of 3 random episodes under the reference.

@@ -25,6 +25,7 @@
 
 use crate::physics::{
     add_floor, clip_actions, new_world, Articulation, Geom, LinkDesc, Robot, RootJoint, SimParams,
+    RAPIER_PREDICTION_DISTANCE,
 };
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
@@ -48,6 +49,7 @@ pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
     substeps: 1,
     solver_iterations: 8,
+    prediction_distance: RAPIER_PREDICTION_DISTANCE,
 };
 const INIT_Z: f32 = 1.25;
 const RESET_NOISE: f32 = 5e-3;

@@ -100,6 +100,7 @@ pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
     substeps: 2,
     solver_iterations: 2,
+    prediction_distance: PREDICTION,
 };
 /// Rapier's contact prediction distance, m: contacts are found this far ahead, so a foot
 /// moving at a few m/s in a 7.5 ms step does not sink into the floor before its contact
@@ -164,6 +165,8 @@ pub struct HumanoidOptions {
     pub substeps: Option<usize>,
     /// Overrides [`SIM`]'s solver iterations per rapier step.
     pub solver_iterations: Option<usize>,
+    /// Overrides [`SIM`]'s contact prediction distance, m.
+    pub prediction_distance: Option<f32>,
 }
 
 impl Default for HumanoidOptions {
@@ -175,6 +178,7 @@ impl Default for HumanoidOptions {
             include_cfrc_ext: true,
             substeps: None,
             solver_iterations: None,
+            prediction_distance: None,
         }
     }
 }
@@ -185,6 +189,7 @@ impl HumanoidOptions {
         crate::physics::PhysicsOptions {
             substeps: self.substeps,
             solver_iterations: self.solver_iterations,
+            prediction_distance: self.prediction_distance,
         }
     }
 
@@ -500,7 +505,6 @@ impl Default for Humanoid {
 
 fn build(sim: &SimParams) -> (PhysicsWorld, Articulation) {
     let mut world = new_world(sim);
-    world.integration_parameters.normalized_prediction_distance = PREDICTION;
     add_floor(&mut world, 1.0);
     let robot = Articulation::build(&mut world, RootJoint::Free, &links());
     (world, robot)
@@ -1196,6 +1200,7 @@ mod tests {
                 control_dt: CONTROL_DT,
                 substeps,
                 solver_iterations,
+                ..SIM
             };
             let mut env = Humanoid::with_sim(&HumanoidOptions::default(), sim);
             let start = std::time::Instant::now();

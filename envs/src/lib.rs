@@ -219,8 +219,8 @@ fn parse_options<T: serde::de::DeserializeOwned>(
         })
 }
 
-/// A robot's physics settings: its `default`, overridden by the `substeps` and
-/// `solver_iterations` keys of `options` (its only keys).
+/// A robot's physics settings: its `default`, overridden by the `substeps`,
+/// `solver_iterations` and `prediction_distance` keys of `options` (its only keys).
 fn physics_options(
     env: &str,
     options: &EnvOptions,
@@ -459,7 +459,16 @@ mod tests {
                 e.contains("`solver_iterations` must be 1 to 64, got 65"),
                 "{e}"
             );
-            assert!(make_with(name, &table("substeps = 3\nsolver_iterations = 2")).is_ok());
+            let e = err(name, "prediction_distance = 0.0");
+            assert!(
+                e.contains("`prediction_distance` must be above 0 and at most 1 m, got 0"),
+                "{e}"
+            );
+            assert!(make_with(
+                name,
+                &table("substeps = 3\nsolver_iterations = 2\nprediction_distance = 0.01")
+            )
+            .is_ok());
         }
         // ... and applied: the cheetah's own setting spelled out repeats its default episode;
         // another setting gives another one.
@@ -478,6 +487,19 @@ mod tests {
             episode(&format!("substeps = {sub}\nsolver_iterations = {it}"))
         );
         assert_ne!(default, episode(&format!("substeps = {}", sub + 3)));
+        // The prediction distance matters when a foot comes down fast: the sine gait's first
+        // 100 steps.
+        let gait = |opts: &str| {
+            let mut env = make_with("halfcheetah", &table(opts)).unwrap();
+            env.reset(Some(0));
+            (0..100)
+                .map(|t| env.step(&gaits::halfcheetah(t)).obs)
+                .collect::<Vec<_>>()
+        };
+        let default = gait("");
+        let shipped = halfcheetah::SIM.prediction_distance;
+        assert_eq!(default, gait(&format!("prediction_distance = {shipped}")));
+        assert_ne!(default, gait("prediction_distance = 0.005"));
         // fpc-assembly's tolerances are options: read, and checked by the env.
         let e = err("fpc-assembly", "lateral_tol_mm = -0.1");
         assert!(

@@ -48,7 +48,14 @@ pub struct SimParams {
     /// Rapier's `num_solver_iterations` per step (rapier's TGS substeps the contact/limit solve
     /// this many times inside a step).
     pub solver_iterations: usize,
+    /// Rapier's `normalized_prediction_distance`, m: contacts are generated for shapes this far
+    /// apart. A contact found ahead of touching can act within the step ("speculative"), so at
+    /// coarse steps a large distance lets a fast foot push off the floor before it touches it.
+    pub prediction_distance: f32,
 }
+
+/// Rapier's own default prediction distance, m.
+pub const RAPIER_PREDICTION_DISTANCE: f32 = 0.02;
 
 /// A user's override of a robot's [`SimParams`] (the keys `substeps` and `solver_iterations`
 /// of a run's `[env_options]`): trade speed for integration accuracy. Unset keys keep the
@@ -60,7 +67,12 @@ pub struct PhysicsOptions {
     pub substeps: Option<usize>,
     /// Rapier solver iterations per step.
     pub solver_iterations: Option<usize>,
+    /// Rapier's contact prediction distance, m.
+    pub prediction_distance: Option<f32>,
 }
+
+/// The largest [`PhysicsOptions::prediction_distance`], m: a contact a metre away is not one.
+pub const MAX_PREDICTION_DISTANCE: f32 = 1.0;
 
 /// The most of either [`PhysicsOptions`] key: beyond it a control step takes seconds.
 pub const MAX_PHYSICS_STEPS: usize = 64;
@@ -75,6 +87,17 @@ impl PhysicsOptions {
                 "`{key}` must be 1 to {MAX_PHYSICS_STEPS}, got {n} (the default is {default})"
             )),
         };
+        let prediction_distance = match self.prediction_distance {
+            None => default.prediction_distance,
+            Some(d) if d > 0.0 && d <= MAX_PREDICTION_DISTANCE => d,
+            Some(d) => {
+                return Err(format!(
+                    "`prediction_distance` must be above 0 and at most {MAX_PREDICTION_DISTANCE} \
+                     m, got {d} (the default is {})",
+                    default.prediction_distance
+                ))
+            }
+        };
         Ok(SimParams {
             control_dt: default.control_dt,
             substeps: check("substeps", self.substeps, default.substeps)?,
@@ -83,6 +106,7 @@ impl PhysicsOptions {
                 self.solver_iterations,
                 default.solver_iterations,
             )?,
+            prediction_distance,
         })
     }
 }
@@ -93,6 +117,7 @@ pub fn new_world(p: &SimParams) -> PhysicsWorld {
     w.gravity = Vector::new(0.0, 0.0, GRAVITY_Z);
     w.integration_parameters.dt = p.control_dt / p.substeps as f32;
     w.integration_parameters.num_solver_iterations = p.solver_iterations;
+    w.integration_parameters.normalized_prediction_distance = p.prediction_distance;
     w
 }
 
@@ -971,6 +996,7 @@ mod tests {
             control_dt: 0.01,
             substeps: 1,
             solver_iterations: 4,
+            prediction_distance: RAPIER_PREDICTION_DISTANCE,
         };
         let mut w = new_world(&p);
         add_floor(&mut w, 1.0);
@@ -1050,6 +1076,7 @@ mod tests {
             control_dt: 0.01,
             substeps: 1,
             solver_iterations,
+            prediction_distance: RAPIER_PREDICTION_DISTANCE,
         };
         let mut w = new_world(&p);
         add_floor(&mut w, 1.0);
@@ -1153,6 +1180,7 @@ mod tests {
             control_dt: 0.01,
             substeps: 1,
             solver_iterations: 4,
+            prediction_distance: RAPIER_PREDICTION_DISTANCE,
         };
         let mut w = new_world(&p);
         w.gravity = Vector::ZERO;

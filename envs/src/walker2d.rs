@@ -35,6 +35,7 @@
 
 use crate::physics::{
     add_floor, clip_actions, new_world, Articulation, Geom, LinkDesc, Robot, RootJoint, SimParams,
+    RAPIER_PREDICTION_DISTANCE,
 };
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
@@ -61,6 +62,7 @@ pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
     substeps: 4,
     solver_iterations: 2,
+    prediction_distance: RAPIER_PREDICTION_DISTANCE,
 };
 const INIT_Z: f32 = 1.25;
 const RESET_NOISE: f32 = 5e-3;
