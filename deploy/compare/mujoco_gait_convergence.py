@@ -8,34 +8,20 @@ Run with the project venv's python (mujoco, gymnasium):
 """
 import sys
 
-import gymnasium as gym
 import numpy as np
 
-P = [4.22699, -2.7452831, 1.0884578, -1.0541096, 0.44694817, -2.9582198, 1.9110123]
+from mujoco_climb_cheetah import episode, make
 
-
-def episode(seed, timestep, frame_skip):
-    env = gym.make("HalfCheetah-v5", frame_skip=frame_skip)
-    env.unwrapped.model.opt.timestep = timestep
-    assert abs(env.unwrapped.dt - 0.05) < 1e-12, env.unwrapped.dt
-    env.reset(seed=seed)
-    x0 = env.unwrapped.data.qpos[0]
-    total = 0.0
-    for t in range(1000):
-        phase = 2 * np.pi * P[0] * t * 0.05
-        action = np.sin(phase + np.array(P[1:7]))
-        _, r, terminated, truncated, _ = env.step(action)
-        total += r
-        if terminated or truncated:
-            break
-    return env.unwrapped.data.qpos[0] - x0, total
+# envs/src/gaits.rs HALFCHEETAH (frequency, phases), every amplitude 1.
+P = [4.22699, -2.7452831, 1.0884578, -1.0541096, 0.44694817, -2.9582198, 1.9110123] + [1.0] * 6
 
 
 def main():
     seeds = int(sys.argv[1]) if len(sys.argv) > 1 else 10
     rows = {}
     for name, dt, skip in [("5x10ms (shipped)", 0.01, 5), ("50x1ms (10x finer)", 0.001, 50)]:
-        runs = [episode(s, dt, skip) for s in range(seeds)]
+        env = make(dt, skip)
+        runs = [episode(env, s, "sine", P) for s in range(seeds)]
         rows[name] = np.array(runs)
         d = ", ".join(f"{x:.1f}" for x, _ in runs)
         print(f"{name}: distance {rows[name][:, 0].mean():.1f} m ({d}), return {rows[name][:, 1].mean():.0f}")
