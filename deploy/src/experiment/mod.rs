@@ -47,7 +47,8 @@ pub struct RunArgs {
     /// Runs at a time (default: the number of cores).
     #[arg(long)]
     pub jobs: Option<usize>,
-    /// Only this run, named <method>/<task>/seed-<s> (repeatable).
+    /// Only this run, named <method>/<task>/seed-<s> (repeatable; the runs start in the order
+    /// named).
     #[arg(long, value_name = "METHOD/TASK/seed-S")]
     pub only: Vec<String>,
     /// A published copy of this experiment (`selkd experiment publish`'s DEST, e.g.

@@ -424,7 +424,8 @@ pub fn config_differences(run: &Run) -> Result<Vec<String>> {
 }
 
 /// Loads, resolves and checks every run against its directory: the one gate before any start.
-/// `only` (run ids) narrows the runs; `cores` and `jobs` set the default `run.threads`.
+/// `only` (run ids) narrows the runs and orders them as named; `cores` and `jobs` set the
+/// default `run.threads`.
 pub fn prepare(
     path: &Path,
     dir: &Path,
@@ -459,6 +460,8 @@ pub fn prepare(
     let mut runs = exp.resolve(dir, threads)?;
     if !only.is_empty() {
         runs.retain(|r| only.contains(&r.id));
+        // In the order named: `--only` is also how a user puts some runs first.
+        runs.sort_by_key(|r| only.iter().position(|o| *o == r.id));
     }
     for r in &runs {
         let diff = config_differences(r)?;
@@ -537,6 +540,32 @@ mod tests {
         );
         let back: Experiment = toml::from_str(&exp.to_toml()).unwrap();
         assert_eq!(back, exp);
+        let _ = std::fs::remove_dir_all(path.parent().unwrap());
+    }
+
+    /// `--only` narrows the runs to those named and starts them in the order named, not the
+    /// file's (seed, task, method) order.
+    #[test]
+    fn only_keeps_the_runs_named_in_their_order() {
+        let path = write_experiment(
+            "only",
+            "total_env_steps = 100\nseeds = [1, 2]\ntasks = [\"pendulum\"]\n\
+             [[method]]\nname = \"a\"\nconfig = \"quick.toml\"\n\
+             [[method]]\nname = \"b\"\nconfig = \"quick.toml\"\n",
+        );
+        let dir = path.parent().unwrap().join("runs");
+        let only: Vec<String> = [
+            "b/pendulum/seed-2",
+            "a/pendulum/seed-1",
+            "b/pendulum/seed-1",
+        ]
+        .map(String::from)
+        .to_vec();
+        let (_, runs) = prepare(&path, &dir, 1, 1, &only).unwrap();
+        let ids: Vec<&str> = runs.iter().map(|r| r.id.as_str()).collect();
+        assert_eq!(ids, only);
+        let (_, all) = prepare(&path, &dir, 1, 1, &[]).unwrap();
+        assert_eq!(all.len(), 4);
         let _ = std::fs::remove_dir_all(path.parent().unwrap());
     }
 
