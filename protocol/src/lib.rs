@@ -685,6 +685,80 @@ mod tests {
         drop(ports);
     }
 
+    /// Every service's sizes, worked out by hand for K = 8: they are part of the protocol
+    /// (iceoryx2 refuses to open a service with larger limits than the ones it was created
+    /// with), so a change must come with a new `PROTOCOL_VERSION`. Per-run services: 2 ports
+    /// per actor (a worker and its dead predecessor until cleanup) and 4 to spare, 20 at K = 8;
+    /// the wake-up to the learner 2 more (22), with the learner and a successor as listeners.
+    /// Services every worker of any run shape may read: 2 × 64 + 4 = 132 nodes and readers.
+    #[test]
+    fn every_service_is_sized_as_the_protocol_says() {
+        let svc = Services::new(&run_id("sizes"));
+        let node = services::node(&learner_node_name(&svc.run_id)).unwrap();
+        let t = services::transitions(&node, &svc, 8).unwrap();
+        let c = t.static_config();
+        assert_eq!(
+            (c.max_nodes(), c.max_publishers(), c.max_subscribers()),
+            (20, 20, 2),
+            "transitions"
+        );
+        assert_eq!(
+            (c.subscriber_max_buffer_size(), c.history_size()),
+            (16_384, 0)
+        );
+        let r = services::reports(&node, &svc, 8).unwrap();
+        let c = r.static_config();
+        assert_eq!(
+            (c.max_nodes(), c.max_publishers(), c.max_subscribers()),
+            (20, 20, 2),
+            "reports"
+        );
+        assert_eq!((c.subscriber_max_buffer_size(), c.history_size()), (256, 0));
+        let latest = [
+            services::weights(&node, &svc, 0)
+                .unwrap()
+                .static_config()
+                .clone(),
+            services::cursor(&node, &svc, 0)
+                .unwrap()
+                .static_config()
+                .clone(),
+        ];
+        let control = services::control(&node, &svc).unwrap();
+        let ranking = services::ranking(&node, &svc).unwrap();
+        for (name, c) in [
+            ("weights", &latest[0]),
+            ("cursor", &latest[1]),
+            ("control", control.static_config()),
+            ("ranking", ranking.static_config()),
+        ] {
+            assert_eq!(
+                (c.max_nodes(), c.max_publishers(), c.max_subscribers()),
+                (132, 2, 132),
+                "{name}"
+            );
+            assert_eq!(
+                (c.subscriber_max_buffer_size(), c.history_size()),
+                (1, 1),
+                "{name}"
+            );
+        }
+        let e = services::to_learner(&node, &svc, 8).unwrap();
+        let c = e.static_config();
+        assert_eq!(
+            (c.max_nodes(), c.max_notifiers(), c.max_listeners()),
+            (22, 22, 2),
+            "to-learner"
+        );
+        let e = services::to_workers(&node, &svc).unwrap();
+        let c = e.static_config();
+        assert_eq!(
+            (c.max_nodes(), c.max_notifiers(), c.max_listeners()),
+            (132, 2, 132),
+            "to-workers"
+        );
+    }
+
     /// The learner waking every worker: room for twice the most actors a run may have.
     #[test]
     fn the_wake_up_call_reaches_twice_the_most_actors() {
