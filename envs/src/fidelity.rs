@@ -130,7 +130,7 @@ fn parse(task: &str, spec: &str) -> (SimParams, PhysicsTuning) {
         .unwrap()
         .split_once('x')
         .expect("STEPSxITERATIONS");
-    let sim = SimParams {
+    let mut sim = SimParams {
         substeps: s.parse().unwrap(),
         solver_iterations: i.parse().unwrap(),
         ..shipped(task)
@@ -148,7 +148,7 @@ fn parse(task: &str, spec: &str) -> (SimParams, PhysicsTuning) {
         } else if p == "i" {
             tuning.explicit_coriolis = Some(false);
         } else if let Some(d) = p.strip_prefix('p') {
-            tuning.prediction = Some(d.parse().unwrap());
+            sim.prediction_distance = d.parse().unwrap();
         } else {
             panic!("unknown part {p} of setting {spec}");
         }

@@ -57,8 +57,8 @@ pub struct SimParams {
 /// Rapier's own default prediction distance, m.
 pub const RAPIER_PREDICTION_DISTANCE: f32 = 0.02;
 
-/// A user's override of a robot's [`SimParams`] (the keys `substeps` and `solver_iterations`
-/// of a run's `[env_options]`): trade speed for integration accuracy. Unset keys keep the
+/// A user's override of a robot's [`SimParams`] (the keys `substeps`, `solver_iterations` and
+/// `prediction_distance` of a run's `[env_options]`): trade speed for integration accuracy. Unset keys keep the
 /// robot's own choice, documented at each robot's `SIM`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -74,7 +74,7 @@ pub struct PhysicsOptions {
 /// The largest [`PhysicsOptions::prediction_distance`], m: a contact a metre away is not one.
 pub const MAX_PREDICTION_DISTANCE: f32 = 1.0;
 
-/// The most of either [`PhysicsOptions`] key: beyond it a control step takes seconds.
+/// The most of `substeps` or `solver_iterations`: beyond it a control step takes seconds.
 pub const MAX_PHYSICS_STEPS: usize = 64;
 
 impl PhysicsOptions {
@@ -795,8 +795,6 @@ pub struct PhysicsTuning {
     /// Contact softness (natural frequency Hz, damping ratio), for contacts with fixed bodies
     /// (the floor) and moving ones alike.
     pub softness: Option<(f32, f32)>,
-    /// Rapier's `normalized_prediction_distance`, m.
-    pub prediction: Option<f32>,
     /// The articulation's Coriolis terms explicit (see [`Articulation::set_explicit_coriolis`]).
     pub explicit_coriolis: Option<bool>,
     /// Joint-limit softness (natural frequency Hz, damping ratio) of every hinge.
@@ -809,9 +807,6 @@ impl PhysicsTuning {
         if let Some((hz, zeta)) = self.softness {
             ip.contact_softness = SpringCoefficients::new(hz, zeta);
             ip.static_contact_softness = SpringCoefficients::new(hz, zeta);
-        }
-        if let Some(d) = self.prediction {
-            ip.normalized_prediction_distance = d;
         }
         if let Some(e) = self.explicit_coriolis {
             art.set_explicit_coriolis(w, e);
