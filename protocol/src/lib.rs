@@ -714,21 +714,13 @@ mod tests {
             "reports"
         );
         assert_eq!((c.subscriber_max_buffer_size(), c.history_size()), (256, 0));
-        let latest = [
-            services::weights(&node, &svc, 0)
-                .unwrap()
-                .static_config()
-                .clone(),
-            services::cursor(&node, &svc, 0)
-                .unwrap()
-                .static_config()
-                .clone(),
-        ];
+        let weights = services::weights(&node, &svc, 0).unwrap();
+        let cursor = services::cursor(&node, &svc, 0).unwrap();
         let control = services::control(&node, &svc).unwrap();
         let ranking = services::ranking(&node, &svc).unwrap();
         for (name, c) in [
-            ("weights", &latest[0]),
-            ("cursor", &latest[1]),
+            ("weights", weights.static_config()),
+            ("cursor", cursor.static_config()),
             ("control", control.static_config()),
             ("ranking", ranking.static_config()),
         ] {
