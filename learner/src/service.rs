@@ -1372,4 +1372,84 @@ mod tests {
         assert_eq!(l.ranking.scores()[0], Some(-120.0));
         let _ = std::fs::remove_dir_all(dir);
     }
+
+    #[test]
+    fn rates_are_the_counts_over_a_window_of_a_second_or_more() {
+        let mut pass = Pass::new(100, 10);
+        // Under a second: no rate yet, and the window stays.
+        assert_eq!(pass.rates(400, 70), (0.0, 0.0));
+        // A window that started 2 s ago with 100 env steps and 10 critic updates: 300 more env
+        // steps and 60 more updates by now are 30 updates/s and 150 env steps/s.
+        pass.window = (Instant::now() - Duration::from_secs(2), 100, 10);
+        let (updates_per_s, env_steps_per_s) = pass.rates(400, 70);
+        assert!((updates_per_s - 30.0).abs() < 0.3, "{updates_per_s}");
+        assert!((env_steps_per_s - 150.0).abs() < 1.5, "{env_steps_per_s}");
+        // The window restarted at (400, 70): within the next second the rates stay as measured.
+        assert_eq!(pass.window.1, 400);
+        assert_eq!(pass.window.2, 70);
+        assert_eq!(pass.rates(500, 80), (updates_per_s, env_steps_per_s));
+    }
+
+    #[test]
+    fn control_is_resent_exactly_when_a_field_that_changes_during_a_run_changed() {
+        let (mut l, dir) = learner(Mode::Async);
+        let c = l.control(false);
+        assert!(same_control(&c, &c.clone()));
+        let changed: [(&str, fn(&mut Control)); 5] = [
+            ("weights_version", |c| c.weights_version += 1),
+            ("eval_epoch", |c| c.eval_epoch += 1),
+            ("stop", |c| c.stop = 1),
+            ("budget of actor 0", |c| c.budget[0] += 1),
+            ("budget of actor 1", |c| c.budget[1] += 1),
+        ];
+        for (what, change) in changed {
+            let mut d = c;
+            change(&mut d);
+            assert!(
+                !same_control(&c, &d),
+                "{what} changed but the control is not resent"
+            );
+            assert!(
+                !same_control(&d, &c),
+                "{what} changed but the control is not resent"
+            );
+        }
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    /// The kernel's CPU flags, read here as the reference (the code asks the CPU itself).
+    fn kernel_says_bf16() -> bool {
+        let info = std::fs::read_to_string("/proc/cpuinfo").unwrap();
+        info.lines()
+            .filter(|l| l.starts_with("flags"))
+            .flat_map(|l| l.split_whitespace())
+            .any(|f| f == "avx512_bf16" || f == "amx_bf16")
+    }
+
+    #[test]
+    #[cfg(all(target_os = "linux", target_arch = "x86_64"))]
+    fn bf16_matmuls_are_refused_exactly_on_a_cpu_without_them() {
+        use crate::config::Precision;
+        assert!(check_matmul(Precision::Fp32, Device::Cpu).is_ok());
+        assert!(check_matmul(Precision::Bf16, Device::Cuda(0)).is_ok());
+        let bf16 = check_matmul(Precision::Bf16, Device::Cpu);
+        assert_eq!(bf16.is_ok(), kernel_says_bf16(), "{bf16:?}");
+        if let Err(e) = bf16 {
+            let e = e.to_string();
+            assert!(
+                e.contains(&cpu_model()) && e.contains("use algo.critic_matmul = \"fp32\""),
+                "{e}"
+            );
+        }
+        // The model named is the one /proc/cpuinfo names.
+        let model = cpu_model();
+        let info = std::fs::read_to_string("/proc/cpuinfo").unwrap();
+        assert!(!model.is_empty() && model != "unknown CPU", "{model:?}");
+        assert!(
+            info.lines()
+                .any(|l| l.starts_with("model name")
+                    && l.trim_end().ends_with(&format!(": {model}"))),
+            "{model:?}"
+        );
+    }
 }
