@@ -364,6 +364,14 @@ impl Run {
     }
 }
 
+/// `config` read by this build, every key written out (defaults included); None where this build
+/// cannot read it (a key since removed).
+fn resolved(config: &toml::Table) -> Option<toml::Table> {
+    let cfg =
+        selkd_learner::config::Config::from_toml_with_overrides(&config.to_string(), &[]).ok()?;
+    cfg.to_toml().parse().ok()
+}
+
 /// Every `section.key = value` of a config but those that may differ between seeds of one method.
 fn comparable(config: &toml::Table) -> BTreeMap<String, String> {
     let mut out = BTreeMap::new();
@@ -408,11 +416,18 @@ pub fn check_same_env(runs: &[&Run]) -> Result<()> {
 
 /// Refuses runs whose configs differ in anything but run.seed, run.threads, run.cpu_gemm,
 /// run.device and run.dir_mode, naming the keys and, for each, the runs' values.
+/// Configs are compared as this build reads them when it reads them all, so a key that a run
+/// made by an older build did not write compares equal to the same key at its default.
 pub fn check_same_config(runs: &[&Run]) -> Result<()> {
     check_same_env(runs)?;
-    let first = comparable(&runs[0].config);
+    let configs: Vec<toml::Table> = runs
+        .iter()
+        .map(|r| resolved(&r.config))
+        .collect::<Option<_>>()
+        .unwrap_or_else(|| runs.iter().map(|r| r.config.clone()).collect());
+    let first = comparable(&configs[0]);
     let mut keys: Vec<String> = Vec::new();
-    let all: Vec<BTreeMap<String, String>> = runs.iter().map(|r| comparable(&r.config)).collect();
+    let all: Vec<BTreeMap<String, String>> = configs.iter().map(comparable).collect();
     for c in &all {
         for k in first.keys().chain(c.keys()) {
             if first.get(k) != c.get(k) && !keys.contains(k) {
@@ -531,6 +546,37 @@ pub(crate) mod tests {
         );
         // Seeds and threads may differ.
         check_same_config(&[&a, &dd]).unwrap();
+        // A key the older run did not write is its default: equal to the default written out,
+        // not to another value (G = 2 of algo.utd = 20 actor updates per round).
+        let with = |v: u64| {
+            format!(
+                "{}actor_updates_per_round = {v}\n",
+                config("pendulum", 5, 2)
+            )
+        };
+        fake_run(&d.join("e"), &with(1), METRICS, Some(2000));
+        fake_run(&d.join("f"), &with(2), METRICS, Some(2000));
+        let [e1, f2] = ["e", "f"].map(|n| Run::load(&d.join(n)).unwrap());
+        check_same_config(&[&a, &e1]).unwrap();
+        let e = check_same_config(&[&a, &f2]).unwrap_err().to_string();
+        assert!(
+            e.contains("algo.actor_updates_per_round = 1")
+                && e.contains("algo.actor_updates_per_round = 2"),
+            "{e}"
+        );
+        // A config this build cannot read is compared key by key as written.
+        fake_run(
+            &d.join("g"),
+            &format!("{}retired_key = 3\n", config("pendulum", 6, 2)),
+            METRICS,
+            Some(2000),
+        );
+        let g = Run::load(&d.join("g")).unwrap();
+        let e = check_same_config(&[&a, &g]).unwrap_err().to_string();
+        assert!(
+            e.contains("algo.retired_key = 3") && e.contains("algo.retired_key = (unset)"),
+            "{e}"
+        );
         assert!(a.finished() && !dd.finished());
         assert_eq!(dd.env_steps(), 1500);
         let _ = std::fs::remove_dir_all(&d);
