@@ -13,7 +13,8 @@
 # replay 10x finer than it (10 S substeps, the same I and D).
 # Our SAC as in deploy/compare/sac-vs-sb3.sh (SB3's sizes: [256, 256], batch 256, one update per
 # env step, 256 warm-up steps). Resumable: a seed whose seed-N.fine.json exists is skipped; a
-# training run interrupted midway starts again. JOBS runs at a time (default 1), one thread each.
+# training run interrupted midway continues from its latest checkpoint (every tenth of STEPS).
+# JOBS runs at a time (default 1), one thread each.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 task=${1:-halfcheetah}
@@ -48,13 +49,21 @@ fine=$((10 * substeps))
 mkdir -p "$out"
 one() {
     local s=$1 d="$out/seed-$1"
-    rm -rf "$d"
-    "$selkd" train --config configs/baselines/sac.toml --run-dir "$d" \
-        --set run.env="$task" --set run.seed="$s" --set run.total_env_steps="$steps" \
-        --set run.threads=1 --set algo.hidden=[256,256] --set algo.batch_size=256 \
-        --set algo.warmup_steps=256 --set eval.epoch_env_steps=$((steps / 10)) \
-        --set eval.episodes=5 $setting_text > "$d.log" 2>&1 \
-        || { echo "learned-policy-fidelity: seed $s failed; see $d.log" >&2; return 1; }
+    if [ -f "$d/checkpoints/latest" ]; then
+        # Stopped or killed midway: continue from its latest checkpoint (with its replay
+        # buffer, so the run ends as an uninterrupted one would).
+        "$selkd" train --resume "$d" >> "$d.log" 2>&1 \
+            || { echo "learned-policy-fidelity: seed $s failed; see $d.log" >&2; return 1; }
+    else
+        rm -rf "$d"
+        "$selkd" train --config configs/baselines/sac.toml --run-dir "$d" \
+            --set run.env="$task" --set run.seed="$s" --set run.total_env_steps="$steps" \
+            --set run.threads=1 --set algo.hidden=[256,256] --set algo.batch_size=256 \
+            --set algo.warmup_steps=256 --set eval.epoch_env_steps=$((steps / 10)) \
+            --set eval.episodes=5 --set run.checkpoint_every=$((steps / 10)) \
+            --set run.checkpoint_replay=true $setting_text > "$d.log" 2>&1 \
+            || { echo "learned-policy-fidelity: seed $s failed; see $d.log" >&2; return 1; }
+    fi
     "$selkd" eval "$d" --episodes 10 --json > "$out/seed-$s.coarse.json"
     "$selkd" eval "$d" --episodes 10 --json --env-options "substeps = $fine" > "$out/seed-$s.fine.json.partial"
     mv "$out/seed-$s.fine.json.partial" "$out/seed-$s.fine.json"
