@@ -1452,4 +1452,73 @@ mod tests {
             "{model:?}"
         );
     }
+
+    #[test]
+    fn periodic_checkpoints_fall_at_each_multiple_and_never_at_the_budget() {
+        let dir = std::env::temp_dir().join(format!("selkd-periodic-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut cfg = Config::default();
+        cfg.run.mode = Mode::Async;
+        cfg.algo.actors = 1;
+        cfg.run.checkpoint_every = 10;
+        cfg.run.total_env_steps = 30;
+        cfg.run.keep_checkpoints = 10;
+        cfg.run.checkpoint_replay = false;
+        let mut l = Learner::new(cfg, &dir, None).unwrap();
+        assert_eq!(l.out.next_checkpoint, 10);
+        let written = |dir: &Path| {
+            let mut names: Vec<String> = std::fs::read_dir(dir.join("checkpoints"))
+                .unwrap()
+                .map(|e| e.unwrap().file_name().into_string().unwrap())
+                .filter(|n| n.starts_with("step-"))
+                .collect();
+            names.sort();
+            names
+        };
+        for (inserted, expected, next) in [
+            (9, vec![], 10),
+            (10, vec!["step-10"], 20),
+            (15, vec!["step-10"], 20),
+            // Late (a pass that stored several transitions): written now, then due at the next
+            // multiple of 10 after the one missed.
+            (25, vec!["step-10", "step-25"], 30),
+            (29, vec!["step-10", "step-25"], 30),
+            // The budget: the final checkpoint is written instead.
+            (30, vec!["step-10", "step-25"], 30),
+        ] {
+            l.stats.inserted = inserted;
+            l.periodic_checkpoint().unwrap();
+            assert_eq!(written(&dir), expected, "at {inserted} env steps");
+            assert_eq!(l.out.next_checkpoint, next, "at {inserted} env steps");
+        }
+        // A resumed run's first periodic checkpoint is the next multiple past its steps.
+        let file = |n: &str| std::fs::File::create(dir.join(n)).unwrap();
+        assert_eq!(
+            Outputs::new(&dir, file("m1"), 25, 10, None).next_checkpoint,
+            30
+        );
+        assert_eq!(
+            Outputs::new(&dir, file("m2"), 30, 10, None).next_checkpoint,
+            40
+        );
+        assert_eq!(
+            Outputs::new(&dir, file("m3"), 0, 10, None).next_checkpoint,
+            10
+        );
+        assert_eq!(
+            Outputs::new(&dir, file("m4"), 25, 0, None).next_checkpoint,
+            0
+        );
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[test]
+    fn the_wall_clock_continues_from_the_resumed_runs() {
+        let (mut l, dir) = learner(Mode::Sync);
+        l.out.wall_offset = 100.0;
+        std::thread::sleep(Duration::from_millis(20));
+        let wall = l.out.wall();
+        assert!((100.02..101.0).contains(&wall), "{wall}");
+        let _ = std::fs::remove_dir_all(dir);
+    }
 }
