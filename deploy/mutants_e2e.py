@@ -32,16 +32,22 @@ import time
 
 
 def sh(cmd, timeout):
-    """Runs `cmd`: "ok", "fail", or "timeout" (then its whole process group is killed, so no
-    cargo or test binary outlives it holding the build lock or the ports)."""
+    """Runs `cmd`: "ok", "fail", or "timeout". Then whatever is left of its process group is
+    killed, so no cargo or test binary outlives it holding the build lock or the ports, and no
+    `selkd train` that a failed test left behind (its learner dies with it) runs on with a
+    mutant: one such learner grew to 21 GB in 40 minutes."""
     p = subprocess.Popen(cmd, shell=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                          start_new_session=True)
     try:
-        return "ok" if p.wait(timeout=timeout) == 0 else "fail"
+        result = "ok" if p.wait(timeout=timeout) == 0 else "fail"
     except subprocess.TimeoutExpired:
+        result = "timeout"
+    try:
         os.killpg(p.pid, signal.SIGKILL)
-        p.wait()
-        return "timeout"
+    except ProcessLookupError:
+        pass  # nothing left
+    p.wait()
+    return result
 
 
 def main():
