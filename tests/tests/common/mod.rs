@@ -120,7 +120,19 @@ pub fn train(run_dir: &Path, sets: &[String]) -> Command {
     c
 }
 
+/// Starts `c`, which dies with the test that started it (the test's thread, which is what
+/// `PR_SET_PDEATHSIG` watches): a test that fails midway leaves no run behind (a launcher's
+/// learner and workers die with it).
 pub fn spawn(mut c: Command) -> Child {
+    use std::os::unix::process::CommandExt;
+    unsafe {
+        c.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
     c.stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
