@@ -4,13 +4,14 @@
 # fresh episodes at the shipped settings and integrated 10x finer (10x the substeps, same control
 # step, same solver iterations). A policy that learned a gait keeps its return and episode length
 # when integrated finely; one that learned the integrator's error loses them. Writes
-# OUT/TASK/seed-N.{coarse,fine}.json (`selkd eval --json`) and OUT/TASK/table.md, and prints the
-# table. Not a test: a measurement to run by hand (docs/results/fidelity.md).
+# OUT/TASK-SxI/seed-N.{coarse,fine}.json (`selkd eval --json`) and OUT/TASK-SxI/table.md, and
+# prints the table. Not a test: a measurement to run by hand (docs/results/fidelity.md).
 #   bash deploy/compare/learned-policy-fidelity.sh [TASK] [SEEDS] [STEPS] [OUT]
 #   JOBS=2 bash deploy/compare/learned-policy-fidelity.sh halfcheetah 3 30000 /work/fidelity-runs
 # SUBSTEPS=S ITERATIONS=I PREDICTION=D (any of them) train at another setting than the shipped
-# one (a candidate; D is `[env_options] prediction_distance`, m), into OUT/TASK-SxI[-pD], and
-# replay 10x finer than it (10 S substeps, the same I and D).
+# one (a candidate; D is `[env_options] prediction_distance`, m) and replay 10x finer than it
+# (10 S substeps, the same I and D). Results go to OUT/TASK-SxI[-pD], named by the setting
+# trained at (shipped or not).
 # Our SAC as in deploy/compare/sac-vs-sb3.sh (SB3's sizes: [256, 256], batch 256, one update per
 # env step, 256 warm-up steps). Resumable: a seed whose seed-N.fine.json exists is skipped; a
 # training run interrupted midway continues from its latest checkpoint (every tenth of STEPS).
@@ -24,27 +25,31 @@ out=${4:-runs/learned-policy-fidelity}
 jobs=${JOBS:-1}
 selkd=${SELKD_BIN:-target/release/selkd}
 [ -x "$selkd" ] || { echo "learned-policy-fidelity: build first: cargo build --release" >&2; exit 1; }
-# The shipped substeps of each task (its `SIM` in envs/src/TASK.rs); 10x of them is the reference.
+# The shipped setting of each task: its `SIM` in envs/src/TASK.rs (10x its substeps is the
+# reference).
 case "$task" in
-    hopper) substeps=1 ;;
-    walker2d) substeps=4 ;;
-    halfcheetah | ant) substeps=5 ;;
-    humanoid) substeps=2 ;;
+    hopper | walker2d | halfcheetah | ant | humanoid) ;;
     *) echo "learned-policy-fidelity: TASK is one of hopper, walker2d, halfcheetah, ant, humanoid (got $task)" >&2; exit 2 ;;
 esac
-grep -q "substeps: $substeps," "envs/src/$task.rs" \
-    || { echo "learned-policy-fidelity: $task no longer ships $substeps substeps; update this script" >&2; exit 1; }
-# A candidate setting: trained with these [env_options], in a directory of its own.
+sim() {
+    awk -v key="$1:" '/^pub const SIM: SimParams/ { f = 1 } f && $1 == key { sub(",", "", $2); print $2; exit }' \
+        "envs/src/$task.rs"
+}
+substeps=$(sim substeps)
+iterations=$(sim solver_iterations)
+[ -n "$substeps" ] && [ -n "$iterations" ] \
+    || { echo "learned-policy-fidelity: cannot read $task's SIM in envs/src/$task.rs; update this script" >&2; exit 1; }
+# A candidate setting: trained with these [env_options].
 setting=()
 if [ -n "${SUBSTEPS:-}${ITERATIONS:-}${PREDICTION:-}" ]; then
     substeps=${SUBSTEPS:-$substeps}
-    setting=(--set env_options.substeps="$substeps")
-    [ -n "${ITERATIONS:-}" ] && setting+=(--set env_options.solver_iterations="$ITERATIONS")
+    iterations=${ITERATIONS:-$iterations}
+    setting=(--set env_options.substeps="$substeps" --set env_options.solver_iterations="$iterations")
     [ -n "${PREDICTION:-}" ] && setting+=(--set env_options.prediction_distance="$PREDICTION")
-    out=$out/$task-${substeps}x${ITERATIONS:-shipped}${PREDICTION:+-p$PREDICTION}
-else
-    out=$out/$task
 fi
+# Each setting in a directory of its own, named by it (OUT/TASK-SxI[-pD]), so that the runs of
+# another setting, or of the task before its shipped setting changed, are never taken for its.
+out=$out/$task-${substeps}x${iterations}${PREDICTION:+-p$PREDICTION}
 fine=$((10 * substeps))
 mkdir -p "$out"
 one() {
