@@ -48,7 +48,8 @@ if [ -n "${SUBSTEPS:-}${ITERATIONS:-}${PREDICTION:-}" ]; then
     [ -n "${PREDICTION:-}" ] && setting+=(--set env_options.prediction_distance="$PREDICTION")
 fi
 # Each setting in a directory of its own, named by it (OUT/TASK-SxI[-pD]), so that the runs of
-# another setting, or of the task before its shipped setting changed, are never taken for its.
+# another setting, or of the task before its shipped setting changed, are never taken for this
+# one's.
 out=$out/$task-${substeps}x${iterations}${PREDICTION:+-p$PREDICTION}
 fine=$((10 * substeps))
 mkdir -p "$out"

@@ -70,8 +70,8 @@ const CONTROL_DT: f32 = 0.05;
 /// networks, batch 128, 2000 warm-up steps, sync mode; seeds 1–3) reached best-actor returns of
 /// 624–1585 after 20k env steps at 5×1 and −125 to 266 at 2×1; every 5×1 seed beat every 2×1
 /// seed. Training wall-clock is set by the learner (an
-/// update costs some 60× an env step here), not by the env, so 5×1 stays the default;
-/// `[env_options] substeps = 2` gives the fast setting.
+/// update costs some 60× an env step here), not by the env, so 5×1 stayed the default over 2×1
+/// (until issue 32 raised it to 5 × 4, below); `[env_options] substeps = 2` gives a fast setting.
 ///
 /// Issue 32 (`docs/results/fidelity.md`): the cheetah's multibody steps with explicit Coriolis
 /// and gyroscopic terms ([`Articulation::set_explicit_coriolis`], set in `build`), not rapier's

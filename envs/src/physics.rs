@@ -58,8 +58,8 @@ pub struct SimParams {
 pub const RAPIER_PREDICTION_DISTANCE: f32 = 0.02;
 
 /// A user's override of a robot's [`SimParams`] (the keys `substeps`, `solver_iterations` and
-/// `prediction_distance` of a run's `[env_options]`): trade speed for integration accuracy. Unset keys keep the
-/// robot's own choice, documented at each robot's `SIM`.
+/// `prediction_distance` of a run's `[env_options]`): trade speed for integration accuracy.
+/// Unset keys keep the robot's own choice, documented at each robot's `SIM`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PhysicsOptions {

@@ -1417,10 +1417,11 @@ mod tests {
         let _ = std::fs::remove_dir_all(dir);
     }
 
-    /// The kernel's CPU flags, read here as the reference (the code asks the CPU itself).
-    fn kernel_says_bf16() -> bool {
-        let info = std::fs::read_to_string("/proc/cpuinfo").unwrap();
-        info.lines()
+    /// The kernel's CPU flags in `cpuinfo`, read here as the reference (the code asks the CPU
+    /// itself).
+    fn kernel_says_bf16(cpuinfo: &str) -> bool {
+        cpuinfo
+            .lines()
             .filter(|l| l.starts_with("flags"))
             .flat_map(|l| l.split_whitespace())
             .any(|f| f == "avx512_bf16" || f == "amx_bf16")
@@ -1430,10 +1431,11 @@ mod tests {
     #[cfg(all(target_os = "linux", target_arch = "x86_64"))]
     fn bf16_matmuls_are_refused_exactly_on_a_cpu_without_them() {
         use crate::config::Precision;
+        let info = std::fs::read_to_string("/proc/cpuinfo").unwrap();
         assert!(check_matmul(Precision::Fp32, Device::Cpu).is_ok());
         assert!(check_matmul(Precision::Bf16, Device::Cuda(0)).is_ok());
         let bf16 = check_matmul(Precision::Bf16, Device::Cpu);
-        assert_eq!(bf16.is_ok(), kernel_says_bf16(), "{bf16:?}");
+        assert_eq!(bf16.is_ok(), kernel_says_bf16(&info), "{bf16:?}");
         if let Err(e) = bf16 {
             let e = e.to_string();
             assert!(
@@ -1443,7 +1445,6 @@ mod tests {
         }
         // The model named is the one /proc/cpuinfo names.
         let model = cpu_model();
-        let info = std::fs::read_to_string("/proc/cpuinfo").unwrap();
         assert!(!model.is_empty() && model != "unknown CPU", "{model:?}");
         assert!(
             info.lines()

@@ -695,43 +695,34 @@ mod tests {
     fn every_service_is_sized_as_the_protocol_says() {
         let svc = Services::new(&run_id("sizes"));
         let node = services::node(&learner_node_name(&svc.run_id)).unwrap();
-        let t = services::transitions(&node, &svc, 8).unwrap();
-        let c = t.static_config();
-        assert_eq!(
-            (c.max_nodes(), c.max_publishers(), c.max_subscribers()),
-            (20, 20, 2),
-            "transitions"
-        );
-        assert_eq!(
-            (c.subscriber_max_buffer_size(), c.history_size()),
-            (16_384, 0)
-        );
-        let r = services::reports(&node, &svc, 8).unwrap();
-        let c = r.static_config();
-        assert_eq!(
-            (c.max_nodes(), c.max_publishers(), c.max_subscribers()),
-            (20, 20, 2),
-            "reports"
-        );
-        assert_eq!((c.subscriber_max_buffer_size(), c.history_size()), (256, 0));
+        let transitions = services::transitions(&node, &svc, 8).unwrap();
+        let reports = services::reports(&node, &svc, 8).unwrap();
         let weights = services::weights(&node, &svc, 0).unwrap();
         let cursor = services::cursor(&node, &svc, 0).unwrap();
         let control = services::control(&node, &svc).unwrap();
         let ranking = services::ranking(&node, &svc).unwrap();
-        for (name, c) in [
-            ("weights", weights.static_config()),
-            ("cursor", cursor.static_config()),
-            ("control", control.static_config()),
-            ("ranking", ranking.static_config()),
+        // (nodes, publishers, subscribers) and (a subscriber's buffer, history).
+        for (name, c, ports, buffers) in [
+            (
+                "transitions",
+                transitions.static_config(),
+                (20, 20, 2),
+                (16_384, 0),
+            ),
+            ("reports", reports.static_config(), (20, 20, 2), (256, 0)),
+            ("weights", weights.static_config(), (132, 2, 132), (1, 1)),
+            ("cursor", cursor.static_config(), (132, 2, 132), (1, 1)),
+            ("control", control.static_config(), (132, 2, 132), (1, 1)),
+            ("ranking", ranking.static_config(), (132, 2, 132), (1, 1)),
         ] {
             assert_eq!(
                 (c.max_nodes(), c.max_publishers(), c.max_subscribers()),
-                (132, 2, 132),
+                ports,
                 "{name}"
             );
             assert_eq!(
                 (c.subscriber_max_buffer_size(), c.history_size()),
-                (1, 1),
+                buffers,
                 "{name}"
             );
         }
