@@ -30,9 +30,9 @@ for f in "${files[@]}"; do
   # protocol number their stages as docs/mutants.md says.)
   e2e="cargo test --release -p selkd-tests"
   case "$f" in
-    actor-worker/*) pkg=selkd-actor-worker; build="cargo build --release -p selkd-actor-worker" ;;
-    learner/*) pkg=selkd-learner; build="cargo build --release -p selkd-learner --bin learner" ;;
-    protocol/*) pkg=selkd-protocol; build="cargo build --release -p selkd-protocol"
+    actor-worker/*) pkg=selkd-actor-worker; unit_timeout=120; build="cargo build --release -p selkd-actor-worker" ;;
+    learner/*) pkg=selkd-learner; unit_timeout=900; build="cargo build --release -p selkd-learner --bin learner" ;;
+    protocol/*) pkg=selkd-protocol; unit_timeout=120; build="cargo build --release -p selkd-protocol"
       # Every binary depends on the protocol: rebuilt only for the mutants its tests miss.
       e2e="cargo build --release --workspace --bins && $e2e" ;;
     *) echo "mutants-e2e: $f is not in actor-worker, learner or protocol" >&2; exit 2 ;;
@@ -44,7 +44,12 @@ for f in "${files[@]}"; do
   # every combination of defaults for a function returning a tuple of slices (768 for one).
   cargo mutants --in-place --list --json --diff --package "$pkg" --file "$f" \
     --exclude-re 'Vec::leak' > "$list"
-  python3 deploy/mutants_e2e.py "$list" "docs/mutants/$name.csv" --build "$build" --timeout 900 \
+  # The package's test binary is built with the mutant, so that stage 1 only runs it (in seconds
+  # for the worker and the protocol) and a mutant that hangs it is called a timeout after
+  # $unit_timeout s, not 15 minutes.
+  python3 deploy/mutants_e2e.py "$list" "docs/mutants/$name.csv" \
+    --build "$build && cargo test --release -p $pkg --no-run" --timeout 900 \
+    --stage-timeout "$unit_timeout" \
     --stage "cargo test --release -p $pkg" \
     --stage "$e2e --test data_path" \
     --stage "$e2e --test faults --test recovery -- --test-threads 1" \

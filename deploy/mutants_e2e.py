@@ -58,6 +58,10 @@ def main():
     p.add_argument("--stage", action="append", required=True, help="a test command; first failing one catches")
     p.add_argument("--re", default="", help="only mutants whose name contains this text")
     p.add_argument("--timeout", type=int, default=600, help="seconds per stage")
+    p.add_argument("--stage-timeout", type=int, action="append", default=[],
+                   help="seconds for the stage of the same position (repeatable; the rest take "
+                        "--timeout): a stage of unit tests that runs in a second need not wait "
+                        "15 minutes to call a mutant that hangs it a timeout")
     p.add_argument("--build-timeout", type=int, default=3600, help="seconds per build")
     a = p.parse_args()
 
@@ -91,7 +95,8 @@ def main():
                 if built == "ok":
                     outcome = "missed"
                     for n, cmd in enumerate(a.stage, 1):
-                        r = sh(cmd, a.timeout)
+                        limit = a.stage_timeout[n - 1] if n <= len(a.stage_timeout) else a.timeout
+                        r = sh(cmd, limit)
                         if r != "ok":
                             outcome, stage = ("caught" if r == "fail" else "timeout"), str(n)
                             break
