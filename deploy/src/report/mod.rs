@@ -460,6 +460,11 @@ fn rows(
                 .iter()
                 .map(|r| r.metrics.ranked(metric).last().copied().unwrap_or(f64::NAN))
                 .collect(),
+            late: g
+                .finished
+                .iter()
+                .map(|r| r.metrics.late_ranked(metric, r.budget))
+                .collect(),
             short: g
                 .short
                 .iter()
@@ -613,6 +618,7 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
     );
     let _ = writeln!(md, "- **Seeds**: {}.", seeds.join("; "));
     let _ = writeln!(md, "- **Score** (Table 2): the actor that the final checkpoint's ranking picks (the actor SELKD executes), re-evaluated with deterministic actions on **E = {} fresh episodes** (`fresh_seed(0..{})`: the same episodes for every method and seed, none played during training, so the pick's luck does not inflate the score), on the run's env and `[env_options]`. The score is the mean undiscounted return, or the success rate for tasks that report success. Each run's episodes are in `RUN/fresh_eval.json`.", args.episodes, args.episodes);
+    let _ = writeln!(md, "- **Last fifth** (Table 2's last column): each seed's mean of its ranked actor's in-run evaluations at the epochs past 0.8 × its budget, then mean ± std over seeds; steadier than the final epoch alone, whose few episodes can swing a run by thousands on Hopper.");
     let _ = writeln!(md, "- **mean ± std** is over seeds; std is the **sample** standard deviation (divisor n − 1; n/a for one seed). Only finished runs (final checkpoint at the budget) are averaged; a † marks a method with runs that stopped short (footnotes give their env steps).");
     let _ = writeln!(md, "- **Curves** (Figures 3, 4, 6–9), drawn against **{}** unless a figure names its own axis: each seed's in-run evaluation of its ranked actor (the `best` column of metrics.csv picks the actor per epoch) interpolated linearly onto a common grid of that axis (every multiple of the shortest epoch length within the range all seeds cover), then mean ± ½ std over seeds; dashed: the mean over a method's actors. Figure 5: the mean, over grid points in the second half of the budget (on critic updates and wall-clock: of the range all seeds cover), of the std across seeds (the paper's stability measure; lower is more stable).", args.x.label());
     let _ = writeln!(md, "- **Pairwise tests**: under each task's Table 2, an exact two-sided Mann-Whitney test of the scores of every pair of methods with finished seeds, with the least p its seed counts allow.");

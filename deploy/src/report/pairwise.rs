@@ -138,6 +138,7 @@ mod tests {
             method: method.into(),
             scores: scores.to_vec(),
             in_run: scores.to_vec(),
+            late: scores.to_vec(),
             short: vec![],
             budget: Budget {
                 env_steps: 1000,

@@ -13,6 +13,9 @@ pub struct Row {
     pub scores: Vec<f64>,
     /// Each finished seed's in-run final evaluation of its ranked actor.
     pub in_run: Vec<f64>,
+    /// Each finished seed's mean in-run evaluation of its ranked actor over the last fifth of
+    /// the budget ([`super::runs::Metrics::late_ranked`]).
+    pub late: Vec<f64>,
     /// `(seed, env steps reached, budget)` of runs that stopped short.
     pub short: Vec<(u64, u64, u64)>,
     /// The method's budget on this task (its runs share one config, so one budget).
@@ -54,6 +57,9 @@ impl Row {
     }
     pub fn in_run(&self) -> (f64, f64) {
         (mean(&self.in_run), sample_std(&self.in_run))
+    }
+    pub fn late(&self) -> (f64, f64) {
+        (mean(&self.late), sample_std(&self.late))
     }
 }
 
@@ -103,9 +109,9 @@ pub fn markdown(task: &str, rows: &[Row], rate: bool, episodes: usize) -> String
     let _ = writeln!(s, "#### `{task}` ({at})\n");
     let _ = writeln!(
         s,
-        "| method | budget | finished seeds | score: {what} on {episodes} fresh episodes, mean ± std | in-run final evaluation of the ranked actor, mean ± std |"
+        "| method | budget | finished seeds | score: {what} on {episodes} fresh episodes, mean ± std | in-run final evaluation of the ranked actor, mean ± std | in-run evaluations of the ranked actor over the budget's last fifth, mean ± std |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|");
     let mut notes = Vec::new();
     for r in rows {
         let (m, sd) = r.score();
@@ -114,14 +120,16 @@ pub fn markdown(task: &str, rows: &[Row], rate: bool, episodes: usize) -> String
             score = format!("**{score}**");
         }
         let (im, isd) = r.in_run();
+        let (lm, lsd) = r.late();
         let mark = if r.short.is_empty() { "" } else { " †" };
         let _ = writeln!(
             s,
-            "| {} | {} | {}{mark} | {score} | {} |",
+            "| {} | {} | {}{mark} | {score} | {} | {} |",
             r.method,
             r.budget.text(),
             r.scores.len(),
-            pm(im, isd, rate)
+            pm(im, isd, rate),
+            pm(lm, lsd, rate)
         );
         for (seed, steps, budget) in &r.short {
             notes.push(format!(
@@ -139,12 +147,13 @@ pub fn markdown(task: &str, rows: &[Row], rate: bool, episodes: usize) -> String
 /// `table2.csv`: every task's rows, numbers at full precision.
 pub fn csv(tasks: &[(String, bool, Vec<Row>)]) -> String {
     let mut s = String::from(
-        "task,method,score,finished_seeds,score_mean,score_std,in_run_mean,in_run_std,short_runs,budget_env_steps,budget_rounds,actors,budget_set_in\n",
+        "task,method,score,finished_seeds,score_mean,score_std,in_run_mean,in_run_std,short_runs,budget_env_steps,budget_rounds,actors,budget_set_in,late_mean,late_std\n",
     );
     for (task, rate, rows) in tasks {
         for r in rows {
             let (m, sd) = r.score();
             let (im, isd) = r.in_run();
+            let (lm, lsd) = r.late();
             let short: Vec<String> = r
                 .short
                 .iter()
@@ -152,7 +161,7 @@ pub fn csv(tasks: &[(String, bool, Vec<Row>)]) -> String {
                 .collect();
             let _ = writeln!(
                 s,
-                "{task},{},{},{},{m},{sd},{im},{isd},{},{},{},{},{}",
+                "{task},{},{},{},{m},{sd},{im},{isd},{},{},{},{},{},{lm},{lsd}",
                 r.method,
                 if *rate { "success_rate" } else { "return" },
                 r.scores.len(),
@@ -178,6 +187,7 @@ mod tests {
                 method: "a".into(),
                 scores: vec![-100.0, -200.0],
                 in_run: vec![-90.0, -110.0],
+                late: vec![-95.0, -125.0],
                 short: vec![],
                 budget: Budget {
                     env_steps: 2000,
@@ -190,6 +200,7 @@ mod tests {
                 method: "b".into(),
                 scores: vec![-50.0],
                 in_run: vec![-40.0],
+                late: vec![-45.0],
                 short: vec![(2, 1500, 2000)],
                 budget: Budget {
                     env_steps: 2000,
@@ -203,7 +214,7 @@ mod tests {
         // Sample std of {-100, -200}: 70.7.
         assert!(
             md.contains(
-                "| a | 400 rounds × K = 5 = 2000 env steps | 2 | -150.0 ± 70.7 | -100.0 ± 14.1 |"
+                "| a | 400 rounds × K = 5 = 2000 env steps | 2 | -150.0 ± 70.7 | -100.0 ± 14.1 | -110.0 ± 21.2 |"
             ),
             "{md}"
         );
@@ -222,7 +233,7 @@ mod tests {
         let csv = csv(&[("pendulum".into(), false, rows)]);
         assert!(
             csv.contains(
-                "pendulum,b,return,1,-50,NaN,-40,NaN,seed-2@1500/2000,2000,2000,1,env_steps"
+                "pendulum,b,return,1,-50,NaN,-40,NaN,seed-2@1500/2000,2000,2000,1,env_steps,-45,NaN"
             ),
             "{csv}"
         );
