@@ -1,7 +1,7 @@
 //! End to end: `selkd experiment run` over real `selkd train` children (stopped by a signal half
 //! way and run again: finished runs are skipped, the stopped one resumes to its budget; SIGTERM
 //! stops with a checkpoint and exits 143; a failed run is reported and the others go on; a locked
-//! run is left alone), its one-line errors for bad experiment files, and `selkd experiment
+//! run is left alone; selkd replaced by a rebuild mid-experiment stops nothing), its one-line errors for bad experiment files, and `selkd experiment
 //! plan`'s commands and job array, whose commands are run here through bash.
 
 mod common;
@@ -554,6 +554,64 @@ config = "tiny.toml"
         log(&run_dir, "selkd.log")
     );
     assert!(stderr.contains("1 stopped"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// Rebuilding or upgrading selkd while an experiment runs replaces its file (a new inode, as
+/// cargo's build and a package manager do). The runner must still start the runs after it and
+/// leave the one training alone; it used to fail to start the next run ("No such file or
+/// directory": the kernel then names its own image "selkd (deleted)") and stop them all.
+#[test]
+fn replacing_selkd_while_an_experiment_runs_stops_nothing() {
+    let text = format!(
+        "{}[[method]]\nname = \"a\"\nconfig = \"tiny.toml\"\n",
+        ONE.replace("seeds = [1]", "seeds = [1, 2]")
+            .replace("total_env_steps = 1000", "total_env_steps = 3000")
+    );
+    let (root, exp) = setup("exp-replaced", &text);
+    let bins = root.join("bin");
+    std::fs::create_dir_all(&bins).unwrap();
+    for b in ["selkd", "learner", "actor-worker"] {
+        std::fs::copy(bin(b), bins.join(b)).unwrap();
+    }
+    let dir = root.join("runs");
+    let (first, second) = (dir.join("a/pendulum/seed-1"), dir.join("a/pendulum/seed-2"));
+    let mut child = spawn({
+        let mut c = Command::new(bins.join("selkd"));
+        c.args(["experiment", "run"])
+            .arg(&exp)
+            .arg("--dir")
+            .arg(&dir)
+            .args(["--jobs", "1"]);
+        c
+    });
+    let t0 = Instant::now();
+    while log(&first, "progress.jsonl").is_empty() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "the first run never started: {:?}",
+            child.try_wait()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::fs::remove_file(bins.join("selkd")).unwrap();
+    std::fs::copy(bin("selkd"), bins.join("selkd")).unwrap();
+    assert!(
+        final_inserted(&first).is_none() && !second.exists(),
+        "the first run ended before selkd was replaced: this test checks nothing; raise the budget"
+    );
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    for run in [&first, &second] {
+        assert_eq!(
+            final_inserted(run),
+            Some(3000),
+            "{}: {stderr}\n{}",
+            run.display(),
+            log(run, "selkd.log")
+        );
+    }
     let _ = std::fs::remove_dir_all(&root);
 }
 

@@ -95,6 +95,10 @@ pub fn run(args: RunArgs) -> Result<i32> {
             State::Fresh => todo.push_back(i),
         }
     }
+    // Resolved once, now: rebuilding or upgrading selkd while an experiment runs replaces the
+    // file, and from then on the kernel names this process's own image "selkd (deleted)", so a
+    // later `current_exe()` could not start the next run. The path itself still leads to selkd.
+    let exe = std::env::current_exe().context("locating selkd")?;
     let threads = runs.first().map_or(1, |r| r.config.run.threads);
     eprintln!(
         "selkd: experiment {}: {} runs: {skipped} finished (skipped), {resumed} to resume, {} to start; {} at a time, run.threads = {threads} unless the experiment sets it → {}",
@@ -107,10 +111,11 @@ pub fn run(args: RunArgs) -> Result<i32> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
-    rt.block_on(schedule(&runs, todo, jobs, skipped))
+    rt.block_on(schedule(&exe, &runs, todo, jobs, skipped))
 }
 
 fn spawn(
+    exe: &Path,
     run: &Run,
     resume: Option<&Path>,
     tx: &mpsc::UnboundedSender<(usize, Outcome)>,
@@ -125,7 +130,7 @@ fn spawn(
         .append(true)
         .open(&log_path)
         .with_context(|| format!("opening {}", log_path.display()))?;
-    let mut cmd = Command::new(std::env::current_exe().context("locating selkd")?);
+    let mut cmd = Command::new(exe);
     cmd.arg("train")
         .arg("--config")
         .arg(&run.config_file)
@@ -179,6 +184,7 @@ fn spawn(
 }
 
 async fn schedule(
+    exe: &Path,
     runs: &[Run],
     mut todo: VecDeque<usize>,
     jobs: usize,
@@ -226,8 +232,17 @@ async fn schedule(
                     None
                 }
             };
-            let pid = spawn(&runs[i], resume.as_deref(), &tx, i)?;
-            running.insert(i, Running { pid, _lock: lock });
+            // A run that cannot start fails alone: the runs already training go on.
+            match spawn(exe, &runs[i], resume.as_deref(), &tx, i) {
+                Ok(pid) => {
+                    running.insert(i, Running { pid, _lock: lock });
+                }
+                Err(e) => {
+                    progress.clear();
+                    eprintln!("selkd: run {} failed: {e:#}", runs[i].id);
+                    failed.push(runs[i].id.clone());
+                }
+            }
         }
         if running.is_empty() && (elsewhere.is_empty() || stop.is_some()) {
             break;
