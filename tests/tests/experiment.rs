@@ -31,6 +31,20 @@ fn final_inserted(run: &Path) -> Option<u64> {
     serde_json::from_str::<serde_json::Value>(&text).ok()?["inserted"].as_u64()
 }
 
+/// Waits (up to a minute) until a run of the experiment `child` runs has logged progress.
+fn wait_until_training(run_dir: &Path, child: &mut std::process::Child) {
+    let t0 = Instant::now();
+    while log(run_dir, "progress.jsonl").is_empty() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "{} never started: {:?}",
+            run_dir.display(),
+            child.try_wait()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 const TWO_BY_TWO: &str = r#"
 total_env_steps = 3000
 seeds = [1, 2]
@@ -534,15 +548,7 @@ config = "tiny.toml"
         c.arg(&exp).arg("--dir").arg(&dir);
         c
     });
-    let t0 = Instant::now();
-    while log(&run_dir, "progress.jsonl").is_empty() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(60),
-            "the run never started: {:?}",
-            child.try_wait()
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_until_training(&run_dir, &mut child);
     unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
     let out = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -585,15 +591,7 @@ fn replacing_selkd_while_an_experiment_runs_stops_nothing() {
             .args(["--jobs", "1"]);
         c
     });
-    let t0 = Instant::now();
-    while log(&first, "progress.jsonl").is_empty() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(60),
-            "the first run never started: {:?}",
-            child.try_wait()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait_until_training(&first, &mut child);
     std::fs::remove_file(bins.join("selkd")).unwrap();
     std::fs::copy(bin("selkd"), bins.join("selkd")).unwrap();
     assert!(
