@@ -124,6 +124,25 @@ fn escape(s: &str) -> String {
         .replace('>', "&gt;")
 }
 
+/// At most this many characters a line of the x-axis label: about 840 px of DejaVu Sans at 14 px,
+/// the width a line centred on the plot has before the image's left edge cuts it.
+const LABEL_CHARS: usize = 100;
+
+/// `text` broken at spaces into lines of at most `max` characters (a longer word stands alone).
+fn wrap(text: &str, max: usize) -> Vec<String> {
+    let mut lines: Vec<String> = Vec::new();
+    for word in text.split(' ') {
+        match lines.last_mut() {
+            Some(l) if l.chars().count() + 1 + word.chars().count() <= max => {
+                l.push(' ');
+                l.push_str(word);
+            }
+            _ => lines.push(word.to_string()),
+        }
+    }
+    lines
+}
+
 fn header(svg: &mut String, h: f64, title: &str) {
     let _ = writeln!(
         svg,
@@ -197,7 +216,9 @@ impl LineChart {
         };
         let sx = |x: f64| LEFT + (x - x0) / (x1 - x0) * (W - LEFT - RIGHT);
         let sy = |y: f64| TOP + (y1 - y) / (y1 - y0) * PLOT_H;
-        let legend_top = TOP + PLOT_H + 64.0;
+        // The label names every method's budget and can be long: wrapped, it pushes the legend down.
+        let x_label = wrap(&self.x_label, LABEL_CHARS);
+        let legend_top = TOP + PLOT_H + 64.0 + 18.0 * (x_label.len() as f64 - 1.0);
         let h = legend_top + ROW * self.series.len() as f64 + 10.0;
         let mut svg = String::new();
         header(&mut svg, h, &self.title);
@@ -215,13 +236,15 @@ impl LineChart {
                 x = sx(v)
             );
         }
-        let _ = writeln!(
-            svg,
-            r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#,
-            LEFT + (W - LEFT - RIGHT) / 2.0,
-            TOP + PLOT_H + 46.0,
-            escape(&self.x_label)
-        );
+        for (i, line) in x_label.iter().enumerate() {
+            let _ = writeln!(
+                svg,
+                r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#,
+                LEFT + (W - LEFT - RIGHT) / 2.0,
+                TOP + PLOT_H + 46.0 + 18.0 * i as f64,
+                escape(line)
+            );
+        }
         // Clip to the plot area: a band may reach past a fixed [0, 1] range.
         let _ = writeln!(
             svg,
@@ -404,6 +427,37 @@ mod tests {
         assert_eq!(tick_label(-1600.0, 200.0), "-1600");
         assert_eq!(tick_label(0.4, 0.2), "0.4");
         assert_eq!(tick_label(2.0e6, 5e5), "2.0M");
+    }
+
+    #[test]
+    fn a_long_axis_label_wraps_at_spaces_and_keeps_every_word() {
+        assert_eq!(wrap("ab cd ef", 5), vec!["ab cd", "ef"]);
+        assert_eq!(wrap("abcdefg hi", 5), vec!["abcdefg", "hi"]);
+        assert_eq!(wrap("short", 100), vec!["short"]);
+        // The evidence report's label, 223 characters: three lines on the chart.
+        let label =
+            "env steps (redq: 100000 env steps = 100000 rounds of K = 1 (set in env steps); \
+            sac: 100000 env steps = 100000 rounds of K = 1 (set in env steps); selkd-env-steps: \
+            100000 env steps = 20000 rounds of K = 5 (set in env steps))";
+        let chart = LineChart {
+            title: "t".into(),
+            x_label: label.into(),
+            y_label: "return".into(),
+            series: vec![Series::line("a", vec![(0.0, 1.0), (10.0, 2.0)], colour(0))],
+            y_range: None,
+            from_zero: false,
+        };
+        let svg = chart.svg();
+        let lines = wrap(label, LABEL_CHARS);
+        assert_eq!(lines.len(), 3, "{lines:?}");
+        assert_eq!(lines.join(" "), label);
+        for l in &lines {
+            assert!(l.chars().count() <= LABEL_CHARS, "{l}");
+            assert!(
+                svg.contains(&format!(">{l}</text>")),
+                "{l} is not a line of {svg}"
+            );
+        }
     }
 
     #[test]
