@@ -128,16 +128,26 @@ fn escape(s: &str) -> String {
 /// the width a line centred on the plot has before the image's left edge cuts it.
 const LABEL_CHARS: usize = 100;
 
-/// `text` broken at spaces into lines of at most `max` characters (a longer word stands alone).
+/// `text` broken into lines of at most `max` characters: between its `; `-separated clauses where
+/// they fit (a method's budget stays on one line), else at spaces (a longer word stands alone).
 fn wrap(text: &str, max: usize) -> Vec<String> {
     let mut lines: Vec<String> = Vec::new();
-    for word in text.split(' ') {
-        match lines.last_mut() {
-            Some(l) if l.chars().count() + 1 + word.chars().count() <= max => {
-                l.push(' ');
-                l.push_str(word);
+    let len = |s: &str| s.chars().count();
+    // Appends `piece` to the last line if it fits there, else starts a line with it.
+    let mut put = |lines: &mut Vec<String>, piece: &str| match lines.last_mut() {
+        Some(l) if len(l) + 1 + len(piece) <= max => {
+            l.push(' ');
+            l.push_str(piece);
+        }
+        _ => lines.push(piece.to_string()),
+    };
+    for clause in text.split_inclusive("; ").map(str::trim_end) {
+        if len(clause) <= max {
+            put(&mut lines, clause);
+        } else {
+            for word in clause.split(' ') {
+                put(&mut lines, word);
             }
-            _ => lines.push(word.to_string()),
         }
     }
     lines
@@ -434,7 +444,10 @@ mod tests {
         assert_eq!(wrap("ab cd ef", 5), vec!["ab cd", "ef"]);
         assert_eq!(wrap("abcdefg hi", 5), vec!["abcdefg", "hi"]);
         assert_eq!(wrap("short", 100), vec!["short"]);
-        // The evidence report's label, 223 characters: three lines on the chart.
+        // Clauses stay whole where they fit: not "a; b c" / "d" but "a;" / "b c d".
+        assert_eq!(wrap("a; b c d", 6), vec!["a;", "b c d"]);
+        assert_eq!(wrap("a; b; c", 6), vec!["a; b;", "c"]);
+        // The evidence report's label, 223 characters: a line per method's budget.
         let label =
             "env steps (redq: 100000 env steps = 100000 rounds of K = 1 (set in env steps); \
             sac: 100000 env steps = 100000 rounds of K = 1 (set in env steps); selkd-env-steps: \
@@ -449,7 +462,14 @@ mod tests {
         };
         let svg = chart.svg();
         let lines = wrap(label, LABEL_CHARS);
-        assert_eq!(lines.len(), 3, "{lines:?}");
+        assert_eq!(
+            lines,
+            vec![
+                "env steps (redq: 100000 env steps = 100000 rounds of K = 1 (set in env steps);",
+                "sac: 100000 env steps = 100000 rounds of K = 1 (set in env steps);",
+                "selkd-env-steps: 100000 env steps = 20000 rounds of K = 5 (set in env steps))"
+            ]
+        );
         assert_eq!(lines.join(" "), label);
         for l in &lines {
             assert!(l.chars().count() <= LABEL_CHARS, "{l}");
