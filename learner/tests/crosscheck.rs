@@ -12,6 +12,9 @@
 //! of near-zero gradients; see the script's tolerances.) It also checks that training moved every
 //! network that had a loss, so that the comparison cannot pass vacuously.
 //!
+//! `sac_updates_match_stable_baselines3` does the same for SAC against Stable-Baselines3's own
+//! `SAC.train` (`tests/crosscheck/sb3_sac.py`), in the venv deploy/python.sh makes.
+//!
 //! Python with torch is found where `deploy/setup.sh` installs it (`SELKD_CACHE`, else
 //! `XDG_CACHE_HOME/selkd`, else `~/.cache/selkd`, then `torch-2.11.0`). Every machine that runs
 //! the tests has it (the build needs it), so a missing torch is a failure, not a skip.
@@ -448,5 +451,61 @@ fn two_rounds_match_an_independent_pytorch_implementation() {
     assert!(
         report.contains(&format!("{} cases agree", cases.len())),
         "the script did not check every case"
+    );
+}
+
+/// The project's Python venv (deploy/python.sh: `SELKD_PYTHON_VENV`, else `python-venv` beside
+/// torch in the cache), which holds Stable-Baselines3.
+fn venv_python() -> PathBuf {
+    std::env::var_os("SELKD_PYTHON_VENV")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| torch_dir().with_file_name("python-venv"))
+        .join("bin/python")
+}
+
+/// Our SAC (K = 1, N = M = 2, the actor on min(Q1, Q2)) against Stable-Baselines3's own
+/// `SAC.train`, not a re-implementation: update by update, SB3 starts from the learner's state and
+/// steps on the learner's mini-batch and noise (`tests/crosscheck/sb3_sac.py` says how, and what
+/// each update compares). SB3 has one learning rate, so α's is the networks' here.
+#[test]
+fn sac_updates_match_stable_baselines3() {
+    let python = venv_python();
+    assert!(
+        python.exists(),
+        "{} is missing: run deploy/python.sh (it installs stable-baselines3 there)",
+        python.display()
+    );
+    let cfg = AlgoConfig::try_from(AlgoKeys {
+        actors: 1,
+        critics: 2,
+        subset: 2,
+        actor_q: ActorQ::Min,
+        alpha_lr: base().lr,
+        ..base()
+    })
+    .unwrap();
+    let case = run_case("sac against sb3", &cfg, [0, 0], 21);
+    let work = std::env::temp_dir().join(format!("selkd-sb3-{}", std::process::id()));
+    std::fs::create_dir_all(&work).unwrap();
+    let input = work.join("case.json");
+    std::fs::write(&input, serde_json::to_vec(&case).unwrap()).unwrap();
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/crosscheck/sb3_sac.py");
+    let out = Command::new(&python)
+        .arg(&script)
+        .arg(&input)
+        .env("OMP_NUM_THREADS", "1")
+        .env("PYTHONDONTWRITEBYTECODE", "1")
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_dir_all(&work);
+    let report = String::from_utf8_lossy(&out.stdout);
+    eprintln!("{report}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "Stable-Baselines3's SAC disagrees with the learner (report above)"
+    );
+    assert!(
+        report.contains("updates agree with Stable-Baselines3"),
+        "the script did not compare the updates"
     );
 }
