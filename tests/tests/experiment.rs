@@ -1,7 +1,8 @@
 //! End to end: `selkd experiment run` over real `selkd train` children (stopped by a signal half
 //! way and run again: finished runs are skipped, the stopped one resumes to its budget; SIGTERM
 //! stops with a checkpoint and exits 143; a failed run is reported and the others go on; a locked
-//! run is left alone; selkd replaced by a rebuild mid-experiment stops nothing), its one-line errors for bad experiment files, and `selkd experiment
+//! run is left alone; one that cannot start fails alone; selkd replaced by a rebuild mid-experiment
+//! stops nothing), its one-line errors for bad experiment files, and `selkd experiment
 //! plan`'s commands and job array, whose commands are run here through bash.
 
 mod common;
@@ -470,6 +471,39 @@ fn a_failed_run_is_reported_with_its_log_and_the_others_go_on() {
     assert!(
         md.contains("**Partial: 1 of the experiment's 2 runs are finished.** Not yet in these tables and curves: `a/pendulum/seed-1`."),
         "{md}"
+    );
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// A run whose directory cannot be made (here a file stands where it should be) fails alone,
+/// with its reason; the runs after it in the queue still train. (The runner used to stop with
+/// that error, and every later run with it.)
+#[test]
+fn a_run_that_cannot_start_fails_alone_and_the_queue_goes_on() {
+    let text = format!(
+        "{}[[method]]\nname = \"a\"\nconfig = \"tiny.toml\"\n",
+        ONE.replace("seeds = [1]", "seeds = [1, 2]")
+    );
+    let (root, exp) = setup("exp-cannot-start", &text);
+    let dir = root.join("runs");
+    std::fs::create_dir_all(dir.join("a/pendulum")).unwrap();
+    std::fs::write(dir.join("a/pendulum/seed-1"), "not a directory").unwrap();
+    let out = run({
+        let mut c = experiment(&["run"]);
+        c.arg(&exp).arg("--dir").arg(&dir).args(["--jobs", "1"]);
+        c
+    });
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("selkd: run a/pendulum/seed-1 failed to start: creating run directory")
+            && stderr.contains("1 failed"),
+        "{stderr}"
+    );
+    let other = dir.join("a/pendulum/seed-2");
+    assert!(
+        final_inserted(&other).is_some_and(|n| n >= 1000),
+        "the queue stopped at the run that could not start: {stderr}"
     );
     let _ = std::fs::remove_dir_all(&root);
 }

@@ -207,7 +207,16 @@ async fn schedule(
             let Some(i) = todo.pop_front() else {
                 break;
             };
-            let Some(lock) = lock(&runs[i].dir, runs[i].config.run.dir_mode)? else {
+            // A run that cannot start (its directory cannot be made or cleared, selkd cannot be
+            // started) fails alone: the runs already training go on, and so does the queue.
+            let claimed = match lock(&runs[i].dir, runs[i].config.run.dir_mode) {
+                Ok(claimed) => claimed,
+                Err(e) => {
+                    cannot_start(&mut progress, &mut failed, &runs[i].id, e);
+                    continue;
+                }
+            };
+            let Some(lock) = claimed else {
                 if announced.insert(i) {
                     progress.clear();
                     eprintln!(
@@ -228,20 +237,18 @@ async fn schedule(
                 }
                 State::Resume(c) => Some(c),
                 State::Fresh => {
-                    clear_unresumable(&runs[i].dir)?;
+                    if let Err(e) = clear_unresumable(&runs[i].dir) {
+                        cannot_start(&mut progress, &mut failed, &runs[i].id, e);
+                        continue;
+                    }
                     None
                 }
             };
-            // A run that cannot start fails alone: the runs already training go on.
             match spawn(exe, &runs[i], resume.as_deref(), &tx, i) {
                 Ok(pid) => {
                     running.insert(i, Running { pid, _lock: lock });
                 }
-                Err(e) => {
-                    progress.clear();
-                    eprintln!("selkd: run {} failed: {e:#}", runs[i].id);
-                    failed.push(runs[i].id.clone());
-                }
+                Err(e) => cannot_start(&mut progress, &mut failed, &runs[i].id, e),
             }
         }
         if running.is_empty() && (elsewhere.is_empty() || stop.is_some()) {
@@ -299,6 +306,13 @@ async fn schedule(
         None if !failed.is_empty() || stopped > 0 => 1,
         None => 0,
     })
+}
+
+/// Counts run `id` as failed because it could not be started, and says why.
+fn cannot_start(progress: &mut Progress, failed: &mut Vec<String>, id: &str, e: anyhow::Error) {
+    progress.clear();
+    eprintln!("selkd: run {id} failed to start: {e:#}");
+    failed.push(id.to_string());
 }
 
 /// The line of a log that says why a run failed: the last one with an error (`selkd train`
