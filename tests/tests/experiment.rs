@@ -32,6 +32,18 @@ fn final_inserted(run: &Path) -> Option<u64> {
     serde_json::from_str::<serde_json::Value>(&text).ok()?["inserted"].as_u64()
 }
 
+/// Runs the experiment one run at a time, expects exit status 1 (a run failed), returns stderr.
+fn run_failing_one_at_a_time(exp: &Path, dir: &Path) -> String {
+    let out = run({
+        let mut c = experiment(&["run"]);
+        c.arg(exp).arg("--dir").arg(dir).args(["--jobs", "1"]);
+        c
+    });
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    stderr
+}
+
 /// Waits (up to a minute) until a run of the experiment `child` runs has logged progress.
 fn wait_until_training(run_dir: &Path, child: &mut std::process::Child) {
     let t0 = Instant::now();
@@ -437,13 +449,7 @@ fn a_failed_run_is_reported_with_its_log_and_the_others_go_on() {
     std::fs::create_dir_all(broken.join("step-5")).unwrap();
     std::fs::write(broken.join("step-5/state.json"), "{\"inserted\": 5}").unwrap();
     std::fs::write(broken.join("latest"), "step-5\n").unwrap();
-    let out = run({
-        let mut c = experiment(&["run"]);
-        c.arg(&exp).arg("--dir").arg(&dir).args(["--jobs", "1"]);
-        c
-    });
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    let stderr = run_failing_one_at_a_time(&exp, &dir);
     assert!(
         stderr.contains("selkd: run a/pendulum/seed-1 failed")
             && stderr.contains("a/pendulum/seed-1/logs/selkd.log")
@@ -488,13 +494,7 @@ fn a_run_that_cannot_start_fails_alone_and_the_queue_goes_on() {
     let dir = root.join("runs");
     std::fs::create_dir_all(dir.join("a/pendulum")).unwrap();
     std::fs::write(dir.join("a/pendulum/seed-1"), "not a directory").unwrap();
-    let out = run({
-        let mut c = experiment(&["run"]);
-        c.arg(&exp).arg("--dir").arg(&dir).args(["--jobs", "1"]);
-        c
-    });
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    let stderr = run_failing_one_at_a_time(&exp, &dir);
     assert!(
         stderr.contains("selkd: run a/pendulum/seed-1 failed to start: creating run directory")
             && stderr.contains("1 failed"),
