@@ -374,12 +374,36 @@ fn torch_dir() -> PathBuf {
     cache.join("torch-2.11.0")
 }
 
-fn python() -> Command {
-    let mut c = Command::new("python3");
-    c.env("PYTHONPATH", torch_dir())
-        .env("OMP_NUM_THREADS", "1")
+/// `interpreter` on one thread, writing no bytecode into the source tree.
+fn python_at(interpreter: &std::path::Path) -> Command {
+    let mut c = Command::new(interpreter);
+    c.env("OMP_NUM_THREADS", "1")
         .env("PYTHONDONTWRITEBYTECODE", "1");
     c
+}
+
+/// The system's python3 with the torch `deploy/setup.sh` installed.
+fn python() -> Command {
+    let mut c = python_at("python3".as_ref());
+    c.env("PYTHONPATH", torch_dir());
+    c
+}
+
+/// Runs `python tests/crosscheck/SCRIPT INPUT.json` on `input`, written to a temporary file;
+/// prints what the script said; returns whether it succeeded and its stdout.
+fn run_script(mut python: Command, script: &str, input: &impl serde::Serialize) -> (bool, String) {
+    let work = std::env::temp_dir().join(format!("selkd-{script}-{}", std::process::id()));
+    std::fs::create_dir_all(&work).unwrap();
+    let file = work.join("input.json");
+    std::fs::write(&file, serde_json::to_vec(input).unwrap()).unwrap();
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/crosscheck")
+        .join(script);
+    let out = python.arg(&path).arg(&file).output().unwrap();
+    let _ = std::fs::remove_dir_all(&work);
+    let report = String::from_utf8_lossy(&out.stdout).into_owned();
+    eprintln!("{report}{}", String::from_utf8_lossy(&out.stderr));
+    (out.status.success(), report)
 }
 
 #[test]
@@ -430,22 +454,14 @@ fn two_rounds_match_an_independent_pytorch_implementation() {
     cases_json.push(run_case(&name, cfg, *best, 10));
     selkd_learner::matmul::set(CpuGemm::Auto);
     let cases = cases_json;
-    let work = std::env::temp_dir().join(format!("selkd-crosscheck-{}", std::process::id()));
-    std::fs::create_dir_all(&work).unwrap();
-    let input = work.join("cases.json");
-    std::fs::write(&input, serde_json::to_vec(&cases).unwrap()).unwrap();
-    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/crosscheck/round.py");
     let learner_s = started.elapsed().as_secs_f64();
-    let out = python().arg(&script).arg(&input).output().unwrap();
+    let (ok, report) = run_script(python(), "round.py", &cases);
     eprintln!(
-        "learner and JSON {learner_s:.1} s, PyTorch {:.1} s",
+        "learner {learner_s:.1} s, JSON and PyTorch {:.1} s",
         started.elapsed().as_secs_f64() - learner_s
     );
-    let _ = std::fs::remove_dir_all(&work);
-    let report = String::from_utf8_lossy(&out.stdout);
-    eprintln!("{report}{}", String::from_utf8_lossy(&out.stderr));
     assert!(
-        out.status.success(),
+        ok,
         "the PyTorch re-implementation disagrees with the learner (report above)"
     );
     assert!(
@@ -485,23 +501,9 @@ fn sac_updates_match_stable_baselines3() {
     })
     .unwrap();
     let case = run_case("sac against sb3", &cfg, [0, 0], 21);
-    let work = std::env::temp_dir().join(format!("selkd-sb3-{}", std::process::id()));
-    std::fs::create_dir_all(&work).unwrap();
-    let input = work.join("case.json");
-    std::fs::write(&input, serde_json::to_vec(&case).unwrap()).unwrap();
-    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/crosscheck/sb3_sac.py");
-    let out = Command::new(&python)
-        .arg(&script)
-        .arg(&input)
-        .env("OMP_NUM_THREADS", "1")
-        .env("PYTHONDONTWRITEBYTECODE", "1")
-        .output()
-        .unwrap();
-    let _ = std::fs::remove_dir_all(&work);
-    let report = String::from_utf8_lossy(&out.stdout);
-    eprintln!("{report}{}", String::from_utf8_lossy(&out.stderr));
+    let (ok, report) = run_script(python_at(&python), "sb3_sac.py", &case);
     assert!(
-        out.status.success(),
+        ok,
         "Stable-Baselines3's SAC disagrees with the learner (report above)"
     );
     assert!(

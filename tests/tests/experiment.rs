@@ -32,6 +32,17 @@ fn final_inserted(run: &Path) -> Option<u64> {
     serde_json::from_str::<serde_json::Value>(&text).ok()?["inserted"].as_u64()
 }
 
+/// An experiment of one method, `a` (tiny.toml), on pendulum, seeds 1 and 2, `budget` env steps.
+fn two_seeds_of_a(budget: u64) -> String {
+    format!(
+        "{}[[method]]\nname = \"a\"\nconfig = \"tiny.toml\"\n",
+        ONE.replace("seeds = [1]", "seeds = [1, 2]").replace(
+            "total_env_steps = 1000",
+            &format!("total_env_steps = {budget}")
+        )
+    )
+}
+
 /// Runs the experiment one run at a time, expects exit status 1 (a run failed), returns stderr.
 fn run_failing_one_at_a_time(exp: &Path, dir: &Path) -> String {
     let out = run({
@@ -438,10 +449,7 @@ config = "tiny.toml"
 
 #[test]
 fn a_failed_run_is_reported_with_its_log_and_the_others_go_on() {
-    let text = format!(
-        "{}[[method]]\nname = \"a\"\nconfig = \"tiny.toml\"\n",
-        ONE.replace("seeds = [1]", "seeds = [1, 2]")
-    );
+    let text = two_seeds_of_a(1000);
     let (root, exp) = setup("exp-failed", &text);
     let dir = root.join("runs");
     // A checkpoint that names itself but holds no model: resuming from it fails in the learner.
@@ -486,10 +494,7 @@ fn a_failed_run_is_reported_with_its_log_and_the_others_go_on() {
 /// that error, and every later run with it.)
 #[test]
 fn a_run_that_cannot_start_fails_alone_and_the_queue_goes_on() {
-    let text = format!(
-        "{}[[method]]\nname = \"a\"\nconfig = \"tiny.toml\"\n",
-        ONE.replace("seeds = [1]", "seeds = [1, 2]")
-    );
+    let text = two_seeds_of_a(1000);
     let (root, exp) = setup("exp-cannot-start", &text);
     let dir = root.join("runs");
     std::fs::create_dir_all(dir.join("a/pendulum")).unwrap();
@@ -603,11 +608,7 @@ config = "tiny.toml"
 /// directory": the kernel then names its own image "selkd (deleted)") and stop them all.
 #[test]
 fn replacing_selkd_while_an_experiment_runs_stops_nothing() {
-    let text = format!(
-        "{}[[method]]\nname = \"a\"\nconfig = \"tiny.toml\"\n",
-        ONE.replace("seeds = [1]", "seeds = [1, 2]")
-            .replace("total_env_steps = 1000", "total_env_steps = 3000")
-    );
+    let text = two_seeds_of_a(3000);
     let (root, exp) = setup("exp-replaced", &text);
     let bins = root.join("bin");
     std::fs::create_dir_all(&bins).unwrap();

@@ -212,7 +212,7 @@ async fn schedule(
             let claimed = match lock(&runs[i].dir, runs[i].config.run.dir_mode) {
                 Ok(claimed) => claimed,
                 Err(e) => {
-                    cannot_start(&mut progress, &mut failed, &runs[i].id, e);
+                    fail(&mut progress, &mut failed, &runs[i].id, &cannot_start(e));
                     continue;
                 }
             };
@@ -238,7 +238,7 @@ async fn schedule(
                 State::Resume(c) => Some(c),
                 State::Fresh => {
                     if let Err(e) = clear_unresumable(&runs[i].dir) {
-                        cannot_start(&mut progress, &mut failed, &runs[i].id, e);
+                        fail(&mut progress, &mut failed, &runs[i].id, &cannot_start(e));
                         continue;
                     }
                     None
@@ -248,7 +248,7 @@ async fn schedule(
                 Ok(pid) => {
                     running.insert(i, Running { pid, _lock: lock });
                 }
-                Err(e) => cannot_start(&mut progress, &mut failed, &runs[i].id, e),
+                Err(e) => fail(&mut progress, &mut failed, &runs[i].id, &cannot_start(e)),
             }
         }
         if running.is_empty() && (elsewhere.is_empty() || stop.is_some()) {
@@ -264,9 +264,8 @@ async fn schedule(
                     Outcome::Stopped => stopped += 1,
                     Outcome::Failed(why) => {
                         let log = runs[i].dir.join("logs").join("selkd.log");
-                        progress.clear();
-                        eprintln!("selkd: run {} failed ({why}): {}\nselkd: its log: {}", runs[i].id, last_line(&log), log.display());
-                        failed.push(runs[i].id.clone());
+                        let why = format!("failed ({why}): {}\nselkd: its log: {}", last_line(&log), log.display());
+                        fail(&mut progress, &mut failed, &runs[i].id, &why);
                     }
                 }
                 continue;
@@ -308,11 +307,16 @@ async fn schedule(
     })
 }
 
-/// Counts run `id` as failed because it could not be started, and says why.
-fn cannot_start(progress: &mut Progress, failed: &mut Vec<String>, id: &str, e: anyhow::Error) {
+/// Counts run `id` as failed and says `why` ("failed ..."), below the progress line.
+fn fail(progress: &mut Progress, failed: &mut Vec<String>, id: &str, why: &str) {
     progress.clear();
-    eprintln!("selkd: run {id} failed to start: {e:#}");
+    eprintln!("selkd: run {id} {why}");
     failed.push(id.to_string());
+}
+
+/// What [`fail`] says of a run that could not be started.
+fn cannot_start(e: anyhow::Error) -> String {
+    format!("failed to start: {e:#}")
 }
 
 /// The line of a log that says why a run failed: the last one with an error (`selkd train`

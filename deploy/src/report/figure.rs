@@ -127,6 +127,8 @@ fn escape(s: &str) -> String {
 /// At most this many characters a line of the x-axis label: about 840 px of DejaVu Sans at 14 px,
 /// the width a line centred on the plot has before the image's left edge cuts it.
 const LABEL_CHARS: usize = 100;
+/// The distance between two lines of the x-axis label, px.
+const LABEL_LINE: f64 = 18.0;
 
 /// `text` broken into lines of at most `max` characters: between its `; `-separated clauses where
 /// they fit (a method's budget stays on one line), else at spaces (a longer word stands alone).
@@ -134,7 +136,7 @@ fn wrap(text: &str, max: usize) -> Vec<String> {
     let mut lines: Vec<String> = Vec::new();
     let len = |s: &str| s.chars().count();
     // Appends `piece` to the last line if it fits there, else starts a line with it.
-    let mut put = |lines: &mut Vec<String>, piece: &str| match lines.last_mut() {
+    let put = |lines: &mut Vec<String>, piece: &str| match lines.last_mut() {
         Some(l) if len(l) + 1 + len(piece) <= max => {
             l.push(' ');
             l.push_str(piece);
@@ -228,7 +230,7 @@ impl LineChart {
         let sy = |y: f64| TOP + (y1 - y) / (y1 - y0) * PLOT_H;
         // The label names every method's budget and can be long: wrapped, it pushes the legend down.
         let x_label = wrap(&self.x_label, LABEL_CHARS);
-        let legend_top = TOP + PLOT_H + 64.0 + 18.0 * (x_label.len() as f64 - 1.0);
+        let legend_top = TOP + PLOT_H + 64.0 + LABEL_LINE * (x_label.len() as f64 - 1.0);
         let h = legend_top + ROW * self.series.len() as f64 + 10.0;
         let mut svg = String::new();
         header(&mut svg, h, &self.title);
@@ -251,7 +253,7 @@ impl LineChart {
                 svg,
                 r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#,
                 LEFT + (W - LEFT - RIGHT) / 2.0,
-                TOP + PLOT_H + 46.0 + 18.0 * i as f64,
+                TOP + PLOT_H + 46.0 + LABEL_LINE * i as f64,
                 escape(line)
             );
         }

@@ -238,11 +238,7 @@ impl Metrics {
             .filter(|(s, _)| **s * 5.0 > budget as f64 * 4.0)
             .map(|(_, v)| *v)
             .collect();
-        if late.is_empty() {
-            f64::NAN
-        } else {
-            super::align::mean(&late)
-        }
+        super::align::mean(&late)
     }
 
     /// Per epoch, the mean over actors.
