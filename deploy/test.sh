@@ -3,6 +3,8 @@
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
+# Which CPU ran the suite: a few tests read the machine (the products' libraries, timings).
+echo "test: $(lscpu 2>/dev/null | sed -n 's/^Model name: *//p'), $(nproc) cores (cgroup cpu.max: $(cat /sys/fs/cgroup/cpu.max 2>/dev/null || echo none)), $(grep -o -w 'avx512f\|avx2\|fma' /proc/cpuinfo 2>/dev/null | sort -u | tr '\n' ' ')"
 bash deploy/setup.sh
 bash deploy/test-deps.sh
 # The selkd Python package and its venv (tests/tests/python.rs runs its pytest files there).

@@ -251,19 +251,28 @@ fn async_mode_holds_the_update_to_insert_ratio_and_bounds_policy_lag() {
     // The learner may trail by at most the tolerance (20 updates over 3600 post-warm-up transitions).
     assert!(
         (ratio - target).abs() <= 0.02 * target,
-        "update ratio {ratio} strays from {target}"
+        "update ratio {ratio} strays from {target}: {last}"
     );
-    // Workers never act with weights more than 3 versions old; a transition in flight while the
-    // learner finishes one more round arrives one version later still.
+    // A worker starts a step only with weights at most 3 versions behind the learner's latest
+    // broadcast, which may trail the learner by the round in training. While the transition is
+    // in flight the learner may work off the rounds it owes: at most the tolerance (10 rounds of
+    // G = 2) and the warm-up's one. (This once asserted 3 + 1, which holds only while no worker is
+    // descheduled between its check and its send; the test failed once in CI, whose output did
+    // not say which assertion.) The mean shows the usual case: the check at each step.
+    let (lag_max, lag_mean) = (
+        last["policy_lag_max"].as_u64().unwrap(),
+        last["policy_lag_mean"].as_f64().unwrap(),
+    );
     assert!(
-        last["policy_lag_max"].as_u64().unwrap() <= 3 + 1,
-        "policy lag {}",
-        last["policy_lag_max"]
+        lag_max <= 3 + 1 + 10 + 1,
+        "policy lag max {lag_max}: {last}"
     );
+    assert!(lag_mean <= 3.0, "policy lag mean {lag_mean}: {last}");
     assert_eq!(last["env_steps"].as_u64(), Some(4000));
     let (h, rows) = metrics(&dir);
     assert_eq!(rows.len(), 4, "one metrics row per epoch");
-    assert!(column(&h, &rows, "critic_updates").last().unwrap() > &3000.0);
+    let updates = *column(&h, &rows, "critic_updates").last().unwrap();
+    assert!(updates > 3000.0, "{updates} critic updates: {last}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
