@@ -519,6 +519,60 @@ mod tests {
     }
 
     #[test]
+    fn a_hello_the_learner_missed_is_said_again() {
+        // A learner that was busy (or not yet connected) when the first hello came answers a
+        // later one: the worker says hello about once a second until it has its cursor.
+        let (svc, _learner_node, ports) = learner("hello");
+        send_weights(&ports, 0, 1);
+        let (to_test, from_worker) = std::sync::mpsc::channel();
+        let run_id = svc.run_id.clone();
+        let worker = std::thread::spawn(move || {
+            let svc = Services::new(&run_id);
+            let args = args(&run_id, 0, 10.0);
+            let node = services::node(&selkd_protocol::worker_node_name(&run_id, 0)).unwrap();
+            let link = Link::join(&args, &node, &svc, ours()).unwrap();
+            to_test.send(Seen::Done).unwrap();
+            let (h, actions) = link.wait_for_cursor().unwrap();
+            to_test.send(Seen::Cursor(h, actions)).unwrap();
+        });
+        assert!(matches!(next(&ports, &from_worker), Seen::Done));
+
+        // Hellos go unanswered until the second.
+        let start = Instant::now();
+        let mut hellos = Vec::new();
+        while hellos.len() < 2 {
+            ports.connect_latecomers().unwrap();
+            while let Some(r) = ports.reports.receive().unwrap() {
+                let r = *r.payload();
+                if r.kind == ReportKind::Hello {
+                    hellos.push((start.elapsed(), r.incarnation));
+                }
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(5),
+                "hellos in 5 s: {hellos:?}"
+            );
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let gap = hellos[1].0 - hellos[0].0;
+        assert!(gap >= Duration::from_millis(900), "hellos {gap:?} apart");
+
+        let cursor = CursorHeader {
+            worker: 0,
+            incarnation: hellos[1].1,
+            sent: 3,
+            episode: 0,
+            step: 3,
+        };
+        ports.send_cursor(cursor, &[0.5]).unwrap();
+        let Seen::Cursor(h, actions) = next(&ports, &from_worker) else {
+            panic!()
+        };
+        assert_eq!((h.sent, actions), (3, vec![0.5]));
+        worker.join().unwrap();
+    }
+
+    #[test]
     fn a_worker_that_cannot_join_says_why() {
         // No learner at all.
         let svc = Services::new(&format!("w{}-none", std::process::id()));
