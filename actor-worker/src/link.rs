@@ -518,8 +518,13 @@ mod tests {
         assert!(!learner_alive(&format!("{}-other", svc.run_id)).unwrap());
     }
 
+    /// The error a worker's wait ended with, as text ("ok" if it did not fail).
+    fn send_error<T>(r: Result<T>) -> String {
+        r.map_or_else(|e| e.to_string(), |_| "ok".into())
+    }
+
     #[test]
-    fn a_hello_the_learner_missed_is_said_again() {
+    fn a_hello_the_learner_missed_is_said_again_and_one_never_answered_ends_the_wait() {
         // A learner that was busy (or not yet connected) when the first hello came answers a
         // later one: the worker says hello about once a second until it has its cursor.
         let (svc, _learner_node, ports) = learner("hello");
@@ -570,6 +575,31 @@ mod tests {
         };
         assert_eq!((h.sent, actions), (3, vec![0.5]));
         worker.join().unwrap();
+
+        // A learner that never answers: the worker gives up after its connect timeout.
+        send_weights(&ports, 1, 1);
+        let run_id = svc.run_id.clone();
+        let worker = std::thread::spawn(move || {
+            let svc = Services::new(&run_id);
+            let args = args(&run_id, 1, 0.5);
+            let node = services::node(&selkd_protocol::worker_node_name(&run_id, 1)).unwrap();
+            send_error(Link::join(&args, &node, &svc, ours()).and_then(|l| l.wait_for_cursor()))
+        });
+        let start = Instant::now();
+        while !worker.is_finished() {
+            ports.connect_latecomers().unwrap();
+            while ports.reports.receive().unwrap().is_some() {}
+            assert!(
+                start.elapsed() < Duration::from_secs(10),
+                "the worker waits for its cursor past its timeout"
+            );
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let e = worker.join().unwrap();
+        assert!(
+            e.contains("did not answer actor 1's hello within 0.5 s"),
+            "{e}"
+        );
     }
 
     #[test]
