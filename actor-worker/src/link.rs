@@ -336,6 +336,7 @@ mod tests {
         Done,
         Takeover(Option<u64>, Option<u64>),
         Cursor(CursorHeader, Vec<f32>),
+        Waited(Duration),
     }
 
     /// Plays the learner's part while waiting for the worker's next word: it connects late
@@ -516,6 +517,38 @@ mod tests {
 
         assert!(learner_alive(&svc.run_id).unwrap());
         assert!(!learner_alive(&format!("{}-other", svc.run_id)).unwrap());
+    }
+
+    #[test]
+    fn a_waiting_worker_sleeps_until_the_learner_says_something() {
+        let (svc, _learner_node, ports) = learner("wait");
+        send_weights(&ports, 0, 1);
+        let (to_test, from_worker) = std::sync::mpsc::channel();
+        let run_id = svc.run_id.clone();
+        let worker = std::thread::spawn(move || {
+            let svc = Services::new(&run_id);
+            let args = args(&run_id, 0, 10.0);
+            let node = services::node(&selkd_protocol::worker_node_name(&run_id, 0)).unwrap();
+            let link = Link::join(&args, &node, &svc, ours()).unwrap();
+            for timeout in [0.3, 20.0] {
+                let start = Instant::now();
+                link.wait(Duration::from_secs_f64(timeout)).unwrap();
+                to_test.send(Seen::Waited(start.elapsed())).unwrap();
+            }
+        });
+        // Nothing said: it sleeps its whole timeout (not a loop that spins a core).
+        let Seen::Waited(quiet) = next(&ports, &from_worker) else {
+            panic!()
+        };
+        assert!(quiet >= Duration::from_millis(290), "woke after {quiet:?}");
+        // The learner's wake-up call ends the wait at once.
+        std::thread::sleep(Duration::from_millis(200));
+        ports.to_workers.notify().unwrap();
+        let Seen::Waited(woken) = next(&ports, &from_worker) else {
+            panic!()
+        };
+        assert!(woken < Duration::from_secs(10), "woke after {woken:?}");
+        worker.join().unwrap();
     }
 
     /// The error a worker's wait ended with, as text ("ok" if it did not fail).
