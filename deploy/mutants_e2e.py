@@ -15,7 +15,8 @@ test stages in order until one fails (caught) or all pass (missed):
         --stage "cargo test --release -p selkd-tests --test data_path"
 
 Resumable: mutants already in OUT are skipped. The file is restored after each mutant (and on
-Ctrl-C); it refuses to start with uncommitted changes in the mutated files. Outcomes: caught
+Ctrl-C or SIGTERM, which end the reading without a row for the mutant in hand and
+kill its stage); it refuses to start with uncommitted changes in the mutated files. Outcomes: caught
 (with the stage that caught it), missed, unviable (does not build), timeout (a stage ran past
 --timeout; counts as caught). A build past --build-timeout stops the reading without a row: on a
 machine that busy the outcome would say nothing about the mutant.
@@ -39,15 +40,27 @@ def sh(cmd, timeout):
     p = subprocess.Popen(cmd, shell=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                          start_new_session=True)
     try:
-        result = "ok" if p.wait(timeout=timeout) == 0 else "fail"
-    except subprocess.TimeoutExpired:
-        result = "timeout"
-    try:
-        os.killpg(p.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass  # nothing left
-    p.wait()
+        try:
+            result = "ok" if p.wait(timeout=timeout) == 0 else "fail"
+        except subprocess.TimeoutExpired:
+            result = "timeout"
+    finally:
+        # Also when the reading is stopped: the stage runs in its own session, out of reach of
+        # a signal to the reading's process group.
+        try:
+            os.killpg(p.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass  # nothing left
+        p.wait()
     return result
+
+
+class Stopped(Exception):
+    pass
+
+
+def stop(signum, _frame):
+    raise Stopped(signal.Signals(signum).name)
 
 
 def main():
@@ -64,6 +77,10 @@ def main():
                         "15 minutes to call a mutant that hangs it a timeout")
     p.add_argument("--build-timeout", type=int, default=3600, help="seconds per build")
     a = p.parse_args()
+    # Set here, not inherited: a shell starts background jobs with SIGINT ignored, and SIGTERM's
+    # default would leave the mutant in the source and its stage running.
+    signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGTERM, stop)
 
     mutants = [m for m in json.load(open(a.mutants)) if a.re in m["name"]]
     files = sorted({m["file"] for m in mutants})
@@ -84,30 +101,39 @@ def main():
         for i, m in enumerate(todo):
             t0 = time.time()
             try:
-                subprocess.run(["patch", "-s", "-p0", m["file"]], input=m["diff"], text=True, check=True)
-                outcome, stage = "unviable", ""
-                built = sh(a.build, a.build_timeout)
-                if built == "timeout":
-                    # A build that does not finish says the machine is too busy, not that the
-                    # mutant does not compile: record nothing and stop.
-                    sys.exit(f"mutants_e2e: building {m['name']} took over {a.build_timeout} s; "
-                             "the machine is too busy (or raise --build-timeout); run again to continue")
-                if built == "ok":
-                    outcome = "missed"
-                    for n, cmd in enumerate(a.stage, 1):
-                        limit = a.stage_timeout[n - 1] if n <= len(a.stage_timeout) else a.timeout
-                        r = sh(cmd, limit)
-                        if r != "ok":
-                            outcome, stage = ("caught" if r == "fail" else "timeout"), str(n)
-                            break
-            finally:
-                subprocess.run(["git", "checkout", "--", m["file"]], check=True)
-            secs = round(time.time() - t0)
-            w.writerow([m["name"], outcome, stage, secs])
-            f.flush()
-            print(f"[{i + 1}/{len(todo)}] {outcome:8} {stage:2} {secs:4}s {m['name']}", flush=True)
+                run_one(a, m, w, f, i, len(todo), t0)
+            except Stopped as e:
+                sys.exit(f"mutants_e2e: stopped by {e}; {m['file']} restored, {m['name']} not recorded; run again to continue")
     # Leave the binaries built from the unmutated source.
     sh(a.build, a.build_timeout)
+
+
+def run_one(a, m, w, f, i, total, t0):
+    """Applies mutant `m`, builds and runs the stages, restores the file and writes its row (no
+    row if the reading is stopped midway)."""
+    try:
+        subprocess.run(["patch", "-s", "-p0", m["file"]], input=m["diff"], text=True, check=True)
+        outcome, stage = "unviable", ""
+        built = sh(a.build, a.build_timeout)
+        if built == "timeout":
+            # A build that does not finish says the machine is too busy, not that the mutant
+            # does not compile: record nothing and stop.
+            sys.exit(f"mutants_e2e: building {m['name']} took over {a.build_timeout} s; "
+                     "the machine is too busy (or raise --build-timeout); run again to continue")
+        if built == "ok":
+            outcome = "missed"
+            for n, cmd in enumerate(a.stage, 1):
+                limit = a.stage_timeout[n - 1] if n <= len(a.stage_timeout) else a.timeout
+                r = sh(cmd, limit)
+                if r != "ok":
+                    outcome, stage = ("caught" if r == "fail" else "timeout"), str(n)
+                    break
+    finally:
+        subprocess.run(["git", "checkout", "--", m["file"]], check=True)
+    secs = round(time.time() - t0)
+    w.writerow([m["name"], outcome, stage, secs])
+    f.flush()
+    print(f"[{i + 1}/{total}] {outcome:8} {stage:2} {secs:4}s {m['name']}", flush=True)
 
 
 if __name__ == "__main__":
