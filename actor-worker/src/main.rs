@@ -48,16 +48,23 @@ fn main() {
     match run(&args) {
         Ok(()) => {}
         Err(e) => {
-            let mismatch = e.downcast_ref::<selkd_protocol::ProtocolError>().is_some()
-                || e.downcast_ref::<CannotJoin>().is_some()
-                || e.downcast_ref::<selkd_envs::EnvError>().is_some();
             eprintln!("actor-worker {}: error: {e:#}", args.worker);
-            std::process::exit(if mismatch {
-                selkd_protocol::EXIT_CANNOT_JOIN
-            } else {
-                1
-            });
+            std::process::exit(exit_code(&e));
         }
+    }
+}
+
+/// `EXIT_CANNOT_JOIN` where this worker cannot work with the run (another env or build, an
+/// index past the actors, env options the env refuses): the launcher then stops the run
+/// instead of restarting the worker. Any other failure is 1, worth a restart.
+fn exit_code(e: &anyhow::Error) -> i32 {
+    let mismatch = e.downcast_ref::<selkd_protocol::ProtocolError>().is_some()
+        || e.downcast_ref::<CannotJoin>().is_some()
+        || e.downcast_ref::<selkd_envs::EnvError>().is_some();
+    if mismatch {
+        selkd_protocol::EXIT_CANNOT_JOIN
+    } else {
+        1
     }
 }
 
@@ -224,6 +231,30 @@ fn remove_half_made_nodes() {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_worker_that_cannot_join_says_so_in_its_exit_code() {
+        let cannot = selkd_protocol::EXIT_CANNOT_JOIN;
+        assert_ne!(cannot, 1);
+        let name = selkd_protocol::ProtocolError::Name("a b".into(), "a space".into());
+        let unknown = selkd_envs::EnvError::Unknown {
+            name: "hoper".into(),
+            known: "hopper".into(),
+        };
+        for (e, want) in [
+            (anyhow::Error::new(name), cannot),
+            (anyhow::Error::new(CannotJoin("--worker 5".into())), cannot),
+            (anyhow::Error::new(unknown), cannot),
+            // Through the context a caller adds.
+            (
+                anyhow::Error::new(CannotJoin("--worker 5".into())).context("joining"),
+                cannot,
+            ),
+            (anyhow::anyhow!("the learner of run `r` is gone"), 1),
+        ] {
+            assert_eq!(exit_code(&e), want, "{e:#}");
+        }
+    }
 
     /// Orders: learner at weights version 5, epoch 2 announced, lag 1, worker 1 may step to 100.
     fn control() -> Control {
