@@ -592,8 +592,10 @@ mod tests {
             );
             std::thread::sleep(Duration::from_millis(5));
         }
+        // About a second apart (less by however late this loop saw the first on a busy
+        // machine); not a burst.
         let gap = hellos[1].0 - hellos[0].0;
-        assert!(gap >= Duration::from_millis(900), "hellos {gap:?} apart");
+        assert!(gap >= Duration::from_millis(300), "hellos {gap:?} apart");
 
         let cursor = CursorHeader {
             worker: 0,
