@@ -75,3 +75,67 @@ fn the_by_hand_example_trains_a_run_with_a_learner_and_two_workers() {
     assert_eq!(state["inserted"], 1000, "{state}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A worker started by hand has no launcher to stop it: when its learner dies (SIGKILL, no
+/// stop order), it must notice on its own and exit with an error that says so.
+#[test]
+fn workers_started_by_hand_exit_when_their_learner_is_gone() {
+    use std::io::BufRead;
+    let dir = temp_dir("by-hand-gone");
+    let config = dir.join("tiny.toml");
+    std::fs::write(&config, TINY).unwrap();
+    let run_id = format!("gone{}", std::process::id());
+    let mut learner = Command::new(bin("learner"));
+    learner
+        .arg("--config")
+        .arg(&config)
+        .args(["--set", "run.total_env_steps=1000000", "--run-dir"])
+        .arg(dir.join("run"))
+        .args(["--run-id", &run_id]);
+    let mut learner = spawn(learner);
+    let workers: Vec<_> = (0..2)
+        .map(|w| {
+            let mut c = Command::new(bin("actor-worker"));
+            c.args(["--run-id", &run_id, "--worker", &w.to_string()])
+                .args(["--env", "pendulum"]);
+            spawn(c)
+        })
+        .collect();
+    // Training is under way: past the warm-up, so the workers wait on the learner's rounds.
+    let mut progress = std::io::BufReader::new(learner.stdout.take().unwrap());
+    let deadline = Instant::now() + Duration::from_secs(120);
+    let mut line = String::new();
+    loop {
+        line.clear();
+        assert!(
+            progress.read_line(&mut line).unwrap() > 0,
+            "the learner ended"
+        );
+        let steps = line
+            .strip_prefix("PROGRESS ")
+            .and_then(|j| serde_json::from_str::<serde_json::Value>(j).ok())
+            .and_then(|p| p["critic_updates"].as_u64())
+            .unwrap_or(0);
+        if steps > 0 {
+            break;
+        }
+        assert!(Instant::now() < deadline, "no training after 120 s");
+    }
+    unsafe { libc::kill(learner.id() as i32, libc::SIGKILL) };
+    learner.wait().unwrap();
+    let gone = Instant::now();
+    for mut w in workers {
+        while w.try_wait().unwrap().is_none() {
+            if gone.elapsed() > Duration::from_secs(30) {
+                let _ = w.kill();
+                panic!("a worker ran on 30 s after its learner was killed");
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        let out = w.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains("is gone"), "{err}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
