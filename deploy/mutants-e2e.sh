@@ -52,6 +52,6 @@ for f in "${files[@]}"; do
     --stage-timeout "$unit_timeout" \
     --stage "cargo test --release -p $pkg" \
     --stage "$e2e --test data_path" \
-    --stage "$e2e --test faults --test recovery -- --test-threads 1" \
+    --stage "$e2e --test faults --test recovery --test examples -- --test-threads 1" \
     --stage "$e2e --test gymnasium -- an_exception_in_step"
 done
