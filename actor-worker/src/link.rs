@@ -519,10 +519,12 @@ mod tests {
         assert!(!learner_alive(&format!("{}-other", svc.run_id)).unwrap());
     }
 
-    #[test]
-    fn a_waiting_worker_sleeps_until_the_learner_says_something() {
-        let (svc, _learner_node, ports) = learner("wait");
-        send_weights(&ports, 0, 1);
+    /// Worker 0 of the run joins in a thread (connect timeout 10 s) and does `body`, telling
+    /// the test what it sees.
+    fn worker_0(
+        svc: &Services,
+        body: impl FnOnce(&Link, &std::sync::mpsc::Sender<Seen>) + Send + 'static,
+    ) -> (std::thread::JoinHandle<()>, std::sync::mpsc::Receiver<Seen>) {
         let (to_test, from_worker) = std::sync::mpsc::channel();
         let run_id = svc.run_id.clone();
         let worker = std::thread::spawn(move || {
@@ -530,6 +532,16 @@ mod tests {
             let args = args(&run_id, 0, 10.0);
             let node = services::node(&selkd_protocol::worker_node_name(&run_id, 0)).unwrap();
             let link = Link::join(&args, &node, &svc, ours()).unwrap();
+            body(&link, &to_test);
+        });
+        (worker, from_worker)
+    }
+
+    #[test]
+    fn a_waiting_worker_sleeps_until_the_learner_says_something() {
+        let (svc, _learner_node, ports) = learner("wait");
+        send_weights(&ports, 0, 1);
+        let (worker, from_worker) = worker_0(&svc, |link, to_test| {
             for timeout in [0.3, 20.0] {
                 let start = Instant::now();
                 link.wait(Duration::from_secs_f64(timeout)).unwrap();
@@ -562,13 +574,7 @@ mod tests {
         // later one: the worker says hello about once a second until it has its cursor.
         let (svc, _learner_node, ports) = learner("hello");
         send_weights(&ports, 0, 1);
-        let (to_test, from_worker) = std::sync::mpsc::channel();
-        let run_id = svc.run_id.clone();
-        let worker = std::thread::spawn(move || {
-            let svc = Services::new(&run_id);
-            let args = args(&run_id, 0, 10.0);
-            let node = services::node(&selkd_protocol::worker_node_name(&run_id, 0)).unwrap();
-            let link = Link::join(&args, &node, &svc, ours()).unwrap();
+        let (worker, from_worker) = worker_0(&svc, |link, to_test| {
             to_test.send(Seen::Done).unwrap();
             let (h, actions) = link.wait_for_cursor().unwrap();
             to_test.send(Seen::Cursor(h, actions)).unwrap();
