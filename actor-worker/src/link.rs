@@ -361,20 +361,38 @@ mod tests {
 
     /// Joins worker `worker` of the run in a thread and returns its error, classified.
     fn join_error(ports: &LearnerPorts, svc: &Services, worker: usize, ours: Handshake) -> String {
+        worker_error(ports, svc, worker, ours, 0.3, |_| Ok(()))
+    }
+
+    /// Joins worker `worker` of the run in a thread with `connect_timeout`, then does `then`;
+    /// returns the first error, classified ("joined" if there was none).
+    fn worker_error(
+        ports: &LearnerPorts,
+        svc: &Services,
+        worker: usize,
+        ours: Handshake,
+        connect_timeout: f64,
+        then: impl FnOnce(&Link) -> Result<()> + Send + 'static,
+    ) -> String {
         let run_id = svc.run_id.clone();
         let t = std::thread::spawn(move || {
             let svc = Services::new(&run_id);
-            let args = args(&run_id, worker, 0.3);
+            let args = args(&run_id, worker, connect_timeout);
             let node = services::node(&format!("wj-{worker}-{run_id}")).unwrap();
-            match Link::join(&args, &node, &svc, ours) {
-                Ok(_) => "joined".to_string(),
+            match Link::join(&args, &node, &svc, ours).and_then(|link| then(&link)) {
+                Ok(()) => "joined".to_string(),
                 Err(e) if e.downcast_ref::<ProtocolError>().is_some() => format!("protocol: {e}"),
                 Err(e) if e.downcast_ref::<CannotJoin>().is_some() => format!("cannot join: {e}"),
                 Err(e) => format!("other: {e}"),
             }
         });
+        let start = Instant::now();
         while !t.is_finished() {
             ports.connect_latecomers().unwrap();
+            assert!(
+                start.elapsed() < Duration::from_secs(10 + connect_timeout as u64),
+                "the worker waits past its connect timeout"
+            );
             std::thread::sleep(Duration::from_millis(10));
         }
         t.join().unwrap()
@@ -563,11 +581,6 @@ mod tests {
         worker.join().unwrap();
     }
 
-    /// The error a worker's wait ended with, as text ("ok" if it did not fail).
-    fn send_error<T>(r: Result<T>) -> String {
-        r.map_or_else(|e| e.to_string(), |_| "ok".into())
-    }
-
     #[test]
     fn a_hello_the_learner_missed_is_said_again_and_one_never_answered_ends_the_wait() {
         // A learner that was busy (or not yet connected) when the first hello came answers a
@@ -619,24 +632,9 @@ mod tests {
 
         // A learner that never answers: the worker gives up after its connect timeout.
         send_weights(&ports, 1, 1);
-        let run_id = svc.run_id.clone();
-        let worker = std::thread::spawn(move || {
-            let svc = Services::new(&run_id);
-            let args = args(&run_id, 1, 0.5);
-            let node = services::node(&selkd_protocol::worker_node_name(&run_id, 1)).unwrap();
-            send_error(Link::join(&args, &node, &svc, ours()).and_then(|l| l.wait_for_cursor()))
+        let e = worker_error(&ports, &svc, 1, ours(), 0.5, |link| {
+            link.wait_for_cursor().map(|_| ())
         });
-        let start = Instant::now();
-        while !worker.is_finished() {
-            ports.connect_latecomers().unwrap();
-            while ports.reports.receive().unwrap().is_some() {}
-            assert!(
-                start.elapsed() < Duration::from_secs(10),
-                "the worker waits for its cursor past its timeout"
-            );
-            std::thread::sleep(Duration::from_millis(5));
-        }
-        let e = worker.join().unwrap();
         assert!(
             e.contains("did not answer actor 1's hello within 0.5 s"),
             "{e}"

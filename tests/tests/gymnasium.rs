@@ -91,14 +91,6 @@ fn the_quick_selkd_config_with_three_workers_learns_gymnasium_pendulum() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-fn wait_until(what: &str, limit: Duration, mut done: impl FnMut() -> bool) {
-    let t0 = Instant::now();
-    while !done() {
-        assert!(t0.elapsed() < limit, "waited {limit:?} for {what}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
 #[test]
 fn a_gymnasium_hopper_run_with_a_worker_and_the_learner_killed_ends_as_its_twin() {
     let sets = small_run(&[

@@ -351,3 +351,12 @@ pub fn random_policy_return(episodes: u64) -> f64 {
     }
     total / episodes as f64
 }
+
+/// Polls `done` every 20 ms; fails the test after `limit`, naming `what` it waited for.
+pub fn wait_until(what: &str, limit: std::time::Duration, mut done: impl FnMut() -> bool) {
+    let t0 = std::time::Instant::now();
+    while !done() {
+        assert!(t0.elapsed() < limit, "waited {limit:?} for {what}");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
