@@ -99,18 +99,18 @@ def main():
         todo = [m for m in mutants if m["name"] not in done]
         print(f"mutants_e2e: {len(todo)} of {len(mutants)} mutants to run", flush=True)
         for i, m in enumerate(todo):
-            t0 = time.time()
             try:
-                run_one(a, m, w, f, i, len(todo), t0)
+                run_one(a, m, w, f, i, len(todo))
             except Stopped as e:
                 sys.exit(f"mutants_e2e: stopped by {e}; {m['file']} restored, {m['name']} not recorded; run again to continue")
     # Leave the binaries built from the unmutated source.
     sh(a.build, a.build_timeout)
 
 
-def run_one(a, m, w, f, i, total, t0):
+def run_one(a, m, w, f, i, total):
     """Applies mutant `m`, builds and runs the stages, restores the file and writes its row (no
     row if the reading is stopped midway)."""
+    t0 = time.time()
     try:
         subprocess.run(["patch", "-s", "-p0", m["file"]], input=m["diff"], text=True, check=True)
         outcome, stage = "unviable", ""
