@@ -84,7 +84,7 @@ fn run(args: &Args) -> Result<()> {
     let spec = env.spec().clone();
     let fingerprint = selkd_envs::options_fingerprint(&env_options);
     let ours = Handshake::ours(spec.id, fingerprint, spec.obs_dim, spec.act_dim);
-    remove_half_made_nodes();
+    selkd_protocol::stale::clean_up();
     // Named after the run: the learner looks for it to tell a gone worker from a quiet one.
     let node = services::node(&selkd_protocol::worker_node_name(&args.run_id, args.worker))
         .map_err(|e| anyhow::anyhow!("starting iceoryx2 node: {e}"))?;
@@ -208,24 +208,6 @@ fn evaluate(env: &mut dyn selkd_envs::Env, link: &Link, seed: u64) -> Result<()>
         result.mean_return(),
         result.success_rate(),
     )
-}
-
-/// A predecessor killed while it made its node left an entry iceoryx2 cannot clean.
-fn remove_half_made_nodes() {
-    match selkd_protocol::stale::remove_half_made_nodes() {
-        Ok(r) => {
-            for p in &r.removed {
-                tracing::info!(
-                    "removed the half-made iceoryx2 node entry {} (its process died while making it)",
-                    p.display()
-                );
-            }
-            for (p, why) in &r.left {
-                tracing::warn!("left the iceoryx2 node entry {}: {why}", p.display());
-            }
-        }
-        Err(e) => tracing::warn!("looking for half-made iceoryx2 node entries: {e}"),
-    }
 }
 
 #[cfg(test)]

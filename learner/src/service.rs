@@ -366,7 +366,7 @@ impl Learner {
 
     /// Runs until the budget is reached or `stop` is raised.
     pub fn run(&mut self, run_id: &str, stop: Arc<AtomicBool>) -> Result<Outcome> {
-        clean_half_made_nodes();
+        selkd_protocol::stale::clean_up();
         let node = services::node(&proto::learner_node_name(run_id))
             .map_err(|e| anyhow!("starting the iceoryx2 node: {e}"))?;
         let ports = LearnerPorts::open(
@@ -1069,22 +1069,6 @@ fn rate_limiter(cfg: &Config, without_replay: bool, stats: &Stats, selkd: &Selkd
         tracing::warn!("the checkpoint holds no replay buffer ({why}): training resumes once {} new transitions (a warm-up's worth, from the current policies) refill it", limiter.warmup_end() - stats.inserted);
     }
     limiter
-}
-
-/// Removes node entries of processes killed while they made their node (iceoryx2 cannot), as
-/// `selkd_protocol::stale` allows; best effort, logged.
-pub fn clean_half_made_nodes() {
-    match selkd_protocol::stale::remove_half_made_nodes() {
-        Ok(r) => {
-            for p in &r.removed {
-                tracing::info!("removed the half-made iceoryx2 node entry {} (its process died while making it)", p.display());
-            }
-            for (p, why) in &r.left {
-                tracing::warn!("left the iceoryx2 node entry {}: {why}", p.display());
-            }
-        }
-        Err(e) => tracing::warn!("looking for half-made iceoryx2 node entries: {e}"),
-    }
 }
 
 fn same_control(a: &Control, b: &Control) -> bool {

@@ -48,6 +48,26 @@ struct Entry {
     monitor: Vec<PathBuf>,
 }
 
+/// What each process does at start (the learner and every worker, a restarted one too, since
+/// its predecessor may have died making its node): [`remove_half_made_nodes`], best effort,
+/// each entry removed or left said in the log.
+pub fn clean_up() {
+    match remove_half_made_nodes() {
+        Ok(r) => {
+            for p in &r.removed {
+                tracing::info!(
+                    "removed the half-made iceoryx2 node entry {} (its process died while making it)",
+                    p.display()
+                );
+            }
+            for (p, why) in &r.left {
+                tracing::warn!("left the iceoryx2 node entry {}: {why}", p.display());
+            }
+        }
+        Err(e) => tracing::warn!("looking for half-made iceoryx2 node entries: {e}"),
+    }
+}
+
 /// Removes the half-made node entries (see the module's doc) from iceoryx2's node directory.
 pub fn remove_half_made_nodes() -> std::io::Result<Report> {
     let cfg = Config::global_config();

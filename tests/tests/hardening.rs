@@ -351,50 +351,17 @@ fn an_async_run_does_not_wait_for_a_worker_that_keeps_dying() {
 /// learner.log names.
 #[test]
 fn half_made_node_entries_are_removed_at_start_and_nothing_else() {
-    use iceoryx2::prelude::{set_log_level, Config, LogLevel};
-    use std::os::unix::fs::PermissionsExt;
-    set_log_level(LogLevel::Error); // not its note that no config file was found
-    let cfg = Config::global_config();
-    let nodes =
-        Path::new(&cfg.global.root_path().to_string()).join(cfg.global.node.directory.to_string());
-    std::fs::create_dir_all(&nodes).unwrap();
-    // A pid that is gone, as a killed creator's is.
-    let dead_pid = std::process::Command::new("true")
-        .spawn()
-        .unwrap()
-        .wait()
-        .map(|_| 0)
-        .unwrap_or(0);
-    let base = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_nanos()
-        * 1000;
-    let details = |name: &str| {
-        format!("executable = \"actor-worker\"\nprocess = {dead_pid}\nname = \"{name}\"\n")
-    };
-    let plant = |n: u128, text: Option<&str>, mode: u32| -> std::path::PathBuf {
-        let dir = nodes.join((base + n).to_string());
-        std::fs::create_dir_all(&dir).unwrap();
-        let f = dir.join("iox2_node.details");
-        std::fs::write(&f, text.unwrap_or("")).unwrap();
-        std::fs::set_permissions(&f, std::fs::Permissions::from_mode(mode)).unwrap();
-        dir
-    };
-    let monitor =
-        |n: u128, suffix: &str| nodes.join(format!("iox2_{}.node_monitor{suffix}", base + n));
-    let after_details = plant(1, Some(&details("actor-worker-0-r1x1")), 0o400);
-    let in_monitor = plant(2, Some(&details("learner-r1x1")), 0o400);
+    let nodes = NodeDir::new();
+    let after_details = nodes.plant(1, Some("actor-worker-0-r1x1"), 0o400);
+    let in_monitor = nodes.plant(2, Some("learner-r1x1"), 0o400);
     for suffix in ["_context", ""] {
-        std::fs::write(monitor(2, suffix), [0u8; 16]).unwrap();
-        std::fs::set_permissions(monitor(2, suffix), std::fs::Permissions::from_mode(0o200))
-            .unwrap();
+        nodes.plant_monitor(2, suffix);
     }
-    let unwritten = plant(3, None, 0o600);
-    let held = plant(4, Some(&details("actor-worker-1-r1x1")), 0o400);
+    let unwritten = nodes.plant(3, None, 0o600);
+    let held = nodes.plant(4, Some("actor-worker-1-r1x1"), 0o400);
     let _holder = std::fs::File::open(held.join("iox2_node.details")).unwrap();
-    let foreign = plant(5, Some(&details("someone-else")), 0o400);
-    let tagged = plant(6, Some(&details("actor-worker-2-r1x1")), 0o400);
+    let foreign = nodes.plant(5, Some("someone-else"), 0o400);
+    let tagged = nodes.plant(6, Some("actor-worker-2-r1x1"), 0o400);
     std::fs::write(tagged.join("iox2_1234.port_tag"), "").unwrap();
 
     let dir = temp_dir("stale-nodes");
@@ -407,11 +374,8 @@ fn half_made_node_entries_are_removed_at_start_and_nothing_else() {
         assert!(!gone.exists(), "{} is still there", gone.display());
     }
     for suffix in ["_context", ""] {
-        assert!(
-            !monitor(2, suffix).exists(),
-            "{}",
-            monitor(2, suffix).display()
-        );
+        let m = nodes.monitor(2, suffix);
+        assert!(!m.exists(), "{}", m.display());
     }
     for kept in [&held, &foreign, &tagged] {
         assert!(
@@ -434,4 +398,101 @@ fn half_made_node_entries_are_removed_at_start_and_nothing_else() {
         let _ = std::fs::remove_dir_all(d);
     }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A worker restarted after its predecessor died making its node has no learner start after
+/// it to clean up: it removes such an entry itself at start (here with no learner at all, so
+/// it gives up joining after its 1 s connect timeout).
+#[test]
+fn a_worker_removes_half_made_node_entries_at_start_too() {
+    let nodes = NodeDir::new();
+    let run_id = format!("cleanup{}", std::process::id());
+    // Any of our processes starting meanwhile (this file's other tests) may remove the entry
+    // first; then the worker's log does not name it, and the test plants another.
+    for attempt in 0..3 {
+        let entry = nodes.plant(100 + attempt, Some("actor-worker-0-r1x1"), 0o400);
+        let out = std::process::Command::new(bin("actor-worker"))
+            .args(["--run-id", &run_id, "--worker", "0", "--env", "pendulum"])
+            .args(["--connect-timeout", "1"])
+            .env("RUST_LOG", "info")
+            .output()
+            .unwrap();
+        let err = stderr_of(&out);
+        assert!(!out.status.success(), "joined without a learner: {err}");
+        assert!(!entry.exists(), "{} is still there: {err}", entry.display());
+        let removed = format!(
+            "removed the half-made iceoryx2 node entry {}",
+            entry.display()
+        );
+        if err.contains(&removed) {
+            return;
+        }
+    }
+    panic!("another process removed the planted entry first, three times");
+}
+
+/// iceoryx2's node directory, where the tests above plant entries as iceoryx2 0.10 leaves a
+/// node whose process was killed while making it: `nodes/<id>/iox2_node.details` (executable,
+/// pid, name), then the monitor files `nodes/iox2_<id>.node_monitor{_context,,_owner_lock}`
+/// in mode 0200, made readable last. Ids are this test's own (nanoseconds since the epoch ×
+/// 1000, plus the entry's number); the pid is one that is gone.
+struct NodeDir {
+    nodes: std::path::PathBuf,
+    base: u128,
+    dead_pid: u32,
+}
+
+impl NodeDir {
+    fn new() -> Self {
+        use iceoryx2::prelude::{set_log_level, Config, LogLevel};
+        set_log_level(LogLevel::Error); // not its note that no config file was found
+        let cfg = Config::global_config();
+        let nodes = Path::new(&cfg.global.root_path().to_string())
+            .join(cfg.global.node.directory.to_string());
+        std::fs::create_dir_all(&nodes).unwrap();
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        let dead_pid = child.id();
+        child.wait().unwrap();
+        let base = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap()
+            .as_nanos()
+            * 1000;
+        Self {
+            nodes,
+            base,
+            dead_pid,
+        }
+    }
+
+    /// Entry `n`'s directory with its details file naming node `name` (`None`: killed before
+    /// writing them, an empty file), in `mode`.
+    fn plant(&self, n: u128, name: Option<&str>, mode: u32) -> std::path::PathBuf {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = self.nodes.join((self.base + n).to_string());
+        std::fs::create_dir_all(&dir).unwrap();
+        let f = dir.join("iox2_node.details");
+        let details = name.map_or(String::new(), |name| {
+            format!(
+                "executable = \"actor-worker\"\nprocess = {}\nname = \"{name}\"\n",
+                self.dead_pid
+            )
+        });
+        std::fs::write(&f, details).unwrap();
+        std::fs::set_permissions(&f, std::fs::Permissions::from_mode(mode)).unwrap();
+        dir
+    }
+
+    /// Entry `n`'s monitor file with `suffix`, as killed while making it: unreadable.
+    fn plant_monitor(&self, n: u128, suffix: &str) {
+        use std::os::unix::fs::PermissionsExt;
+        let m = self.monitor(n, suffix);
+        std::fs::write(&m, [0u8; 16]).unwrap();
+        std::fs::set_permissions(&m, std::fs::Permissions::from_mode(0o200)).unwrap();
+    }
+
+    fn monitor(&self, n: u128, suffix: &str) -> std::path::PathBuf {
+        self.nodes
+            .join(format!("iox2_{}.node_monitor{suffix}", self.base + n))
+    }
 }

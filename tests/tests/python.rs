@@ -9,7 +9,6 @@ mod common;
 use common::*;
 use rand::{Rng, SeedableRng};
 use serde_json::json;
-use std::path::{Path, PathBuf};
 use std::process::Command;
 
 #[test]
