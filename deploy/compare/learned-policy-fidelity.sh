@@ -15,7 +15,9 @@
 # Our SAC as in deploy/compare/sac-vs-sb3.sh (SB3's sizes: [256, 256], batch 256, one update per
 # env step, 256 warm-up steps). Resumable: a seed whose seed-N.fine.json exists is skipped; a
 # training run interrupted midway continues from its latest checkpoint (every tenth of STEPS).
-# JOBS runs at a time (default 1), one thread each.
+# JOBS runs at a time (default 1), one thread each. EPISODES (default 10) fresh episodes per
+# replay: where episodes end in a fall or at the time limit, 10 decide little (50 were used for
+# hopper, walker2d and humanoid). Changing it replays the finished seeds again.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 task=${1:-halfcheetah}
@@ -23,6 +25,7 @@ seeds=${2:-3}
 steps=${3:-30000}
 out=${4:-runs/learned-policy-fidelity}
 jobs=${JOBS:-1}
+episodes=${EPISODES:-10}
 selkd=${SELKD_BIN:-target/release/selkd}
 [ -x "$selkd" ] || { echo "learned-policy-fidelity: build first: cargo build --release" >&2; exit 1; }
 # The shipped setting of each task: its `SIM` in envs/src/TASK.rs (10x its substeps is the
@@ -70,21 +73,31 @@ one() {
             --set run.checkpoint_replay=true $setting_text > "$d.log" 2>&1 \
             || { echo "learned-policy-fidelity: seed $s failed; see $d.log" >&2; return 1; }
     fi
-    "$selkd" eval "$d" --episodes 10 --json > "$out/seed-$s.coarse.json"
-    "$selkd" eval "$d" --episodes 10 --json --env-options "substeps = $fine" > "$out/seed-$s.fine.json.partial"
-    mv "$out/seed-$s.fine.json.partial" "$out/seed-$s.fine.json"
 }
+# Each seed's final actor on EPISODES fresh episodes at the setting and 10x finer.
+replay() {
+    local s=$1 d="$out/seed-$1"
+    "$selkd" eval "$d" --episodes "$episodes" --json > "$out/seed-$s.coarse$tag.json"
+    "$selkd" eval "$d" --episodes "$episodes" --json --env-options "substeps = $fine" \
+        > "$out/seed-$s.fine$tag.json.partial"
+    mv "$out/seed-$s.fine$tag.json.partial" "$out/seed-$s.fine$tag.json"
+}
+# The replays' files: seed-N.{coarse,fine}.json for 10 episodes, .50.json-style names otherwise.
+tag=""; [ "$episodes" = 10 ] || tag=$episodes
 # The setting's words (no spaces inside any) for the xargs shells, which get no arrays.
-export -f one; export out task steps fine selkd; export setting_text="${setting[*]}"
+export -f one replay; export out task steps fine selkd episodes tag; export setting_text="${setting[*]}"
 
 for s in $(seq 1 "$seeds"); do
-    [ -f "$out/seed-$s.fine.json" ] || echo "$s"
+    [ -f "$out/seed-$s/checkpoints/final/model.safetensors" ] || echo "$s"
 done | xargs -r -P "$jobs" -I{} bash -c 'one {}'
-python3 - "$out" "$seeds" "$substeps" "$fine" <<'EOF' | tee "$out/table.md"
+for s in $(seq 1 "$seeds"); do
+    [ -f "$out/seed-$s.fine$tag.json" ] || echo "$s"
+done | xargs -r -P "$jobs" -I{} bash -c 'replay {}'
+python3 - "$out" "$seeds" "$substeps" "$fine" "$tag" <<'EOF' | tee "$out/table$tag.md"
 import json, sys
-out, seeds, coarse_n, fine_n = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4]
+out, seeds, coarse_n, fine_n, tag = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4], sys.argv[5]
 def load(s, which):
-    a = json.load(open(f"{out}/seed-{s}.{which}.json"))["actors"][0]
+    a = json.load(open(f"{out}/seed-{s}.{which}{tag}.json"))["actors"][0]
     return a["mean_return"], a["mean_length"]
 def gap(a, b):
     return f"{100 * abs(a - b) / abs(b):.0f}%" if b else "n/a"
