@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # Issue 32's learned-policy check (goal 1): our SAC trained on one of our rapier tasks at its
-# shipped integration settings, SEEDS seeds, then each run's best actor replayed on the same 10
-# fresh episodes at the shipped settings and integrated 10x finer (10x the substeps, same control
-# step, same solver iterations). A policy that learned a gait keeps its return and episode length
+# shipped integration settings, SEEDS seeds, then each run's best actor replayed on the same
+# EPISODES fresh episodes at the shipped settings and integrated 10x finer (10x the substeps, same
+# control step, same solver iterations). A policy that learned a gait keeps its return and episode length
 # when integrated finely; one that learned the integrator's error loses them. Writes
 # OUT/TASK-SxI/seed-N.{coarse,fine}.json (`selkd eval --json`) and OUT/TASK-SxI/table.md, and
-# prints the table. Not a test: a measurement to run by hand (docs/results/fidelity.md).
+# prints the table (with EPISODES other than 10: seed-N.{coarse,fine}EPISODES.json and
+# tableEPISODES.md). Not a test: a measurement to run by hand (docs/results/fidelity.md).
 #   bash deploy/compare/learned-policy-fidelity.sh [TASK] [SEEDS] [STEPS] [OUT]
 #   JOBS=2 bash deploy/compare/learned-policy-fidelity.sh halfcheetah 3 30000 /work/fidelity-runs
 # SUBSTEPS=S ITERATIONS=I PREDICTION=D (any of them) train at another setting than the shipped
@@ -13,8 +14,9 @@
 # (10 S substeps, the same I and D). Results go to OUT/TASK-SxI[-pD], named by the setting
 # trained at (shipped or not).
 # Our SAC as in deploy/compare/sac-vs-sb3.sh (SB3's sizes: [256, 256], batch 256, one update per
-# env step, 256 warm-up steps). Resumable: a seed whose seed-N.fine.json exists is skipped; a
-# training run interrupted midway continues from its latest checkpoint (every tenth of STEPS).
+# env step, 256 warm-up steps). Resumable: a seed with a final checkpoint is not trained again,
+# nor replayed again where its fine replay exists; a training run interrupted midway continues
+# from its latest checkpoint (every tenth of STEPS).
 # JOBS runs at a time (default 1), one thread each. EPISODES (default 10) fresh episodes per
 # replay: where episodes end in a fall or at the time limit, 10 decide little (50 were used for
 # hopper, walker2d and humanoid). Changing it replays the finished seeds again.
@@ -82,7 +84,7 @@ replay() {
         > "$out/seed-$s.fine$tag.json.partial"
     mv "$out/seed-$s.fine$tag.json.partial" "$out/seed-$s.fine$tag.json"
 }
-# The replays' files: seed-N.{coarse,fine}.json for 10 episodes, .50.json-style names otherwise.
+# The replays' file names: seed-N.fine.json for 10 episodes, seed-N.fine50.json for 50.
 tag=""; [ "$episodes" = 10 ] || tag=$episodes
 # The setting's words (no spaces inside any) for the xargs shells, which get no arrays.
 export -f one replay; export out task steps fine selkd episodes tag; export setting_text="${setting[*]}"
