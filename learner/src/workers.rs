@@ -225,18 +225,23 @@ mod tests {
         // Takers 0 and 2 share an allowance of 10: 5 each.
         assert_eq!(ws.top_up_grants(10, 1000), &[5, 0, 5]);
         assert_eq!(ws.grant_turn, 1);
-        // Worker 0 used its 5; worker 2 holds its 5 and went quiet: only worker 0 takes, up to
-        // the allowance less what worker 2 holds.
+        // Worker 0 used its 5 and waits for more, quiet as a waiting worker is; worker 2 holds
+        // its 5 and went quiet: only worker 0 takes, up to the allowance less what worker 2
+        // holds.
         ws.rollouts[0].sent = 5;
+        ws.last_heard[0] = Instant::now() - 2 * QUIET;
         ws.last_heard[2] = Instant::now() - 2 * QUIET;
         assert_eq!(ws.top_up_grants(10, 1000), &[10, 0, 5]);
         assert_eq!(ws.grant_turn, 2);
-        // A worker heard from recently takes even while it holds some of its grant.
+        // Workers heard from recently take even while they hold some of their grant: all three
+        // take. Held 5, 0, 5 (10 outstanding), so 20 of the 30 are free; each taker's share is
+        // (20 + 10) / 3 = 10, topped up from worker 2 (the turn) on: 2 gets 5 (to 10), 0 gets 5
+        // (10 + 5 = 15), 1 gets 10.
+        ws.heard(0);
         ws.heard(2);
         ws.benched[1] = false;
-        ws.top_up_grants(30, 1000);
+        assert_eq!(ws.top_up_grants(30, 1000), &[15, 10, 10]);
         assert_eq!(ws.grant_turn, 0, "the round-robin's start turns");
-        assert!(ws.granted.iter().all(|&g| g > 0), "{:?}", ws.granted);
     }
 
     #[test]
