@@ -9,10 +9,10 @@
 # tableEPISODES.md). Not a test: a measurement to run by hand (docs/results/fidelity.md).
 #   bash deploy/compare/learned-policy-fidelity.sh [TASK] [SEEDS] [STEPS] [OUT]
 #   JOBS=2 bash deploy/compare/learned-policy-fidelity.sh halfcheetah 3 30000 /work/fidelity-runs
-# SUBSTEPS=S ITERATIONS=I PREDICTION=D (any of them) train at another setting than the shipped
-# one (a candidate; D is `[env_options] prediction_distance`, m) and replay 10x finer than it
-# (10 S substeps, the same I and D). Results go to OUT/TASK-SxI[-pD], named by the setting
-# trained at (shipped or not).
+# SUBSTEPS=S ITERATIONS=I PREDICTION=D LIMIT_HZ=F (any of them) train at another setting than
+# the shipped one (a candidate; D is `[env_options] prediction_distance`, m, F its
+# `limit_frequency`, Hz) and replay 10x finer than it (10 S substeps, the same I, D and F).
+# Results go to OUT/TASK-SxI[-pD][-jF], named by the setting trained at (shipped or not).
 # Our SAC as in deploy/compare/sac-vs-sb3.sh (SB3's sizes: [256, 256], batch 256, one update per
 # env step, 256 warm-up steps). Resumable: a seed with a final checkpoint is not trained again,
 # nor replayed again where its fine replay exists; a training run interrupted midway continues
@@ -46,16 +46,17 @@ iterations=$(sim solver_iterations)
     || { echo "learned-policy-fidelity: cannot read $task's SIM in envs/src/$task.rs; update this script" >&2; exit 1; }
 # A candidate setting: trained with these [env_options].
 setting=()
-if [ -n "${SUBSTEPS:-}${ITERATIONS:-}${PREDICTION:-}" ]; then
+if [ -n "${SUBSTEPS:-}${ITERATIONS:-}${PREDICTION:-}${LIMIT_HZ:-}" ]; then
     substeps=${SUBSTEPS:-$substeps}
     iterations=${ITERATIONS:-$iterations}
     setting=(--set env_options.substeps="$substeps" --set env_options.solver_iterations="$iterations")
     [ -n "${PREDICTION:-}" ] && setting+=(--set env_options.prediction_distance="$PREDICTION")
+    [ -n "${LIMIT_HZ:-}" ] && setting+=(--set env_options.limit_frequency="$LIMIT_HZ")
 fi
-# Each setting in a directory of its own, named by it (OUT/TASK-SxI[-pD]), so that the runs of
+# Each setting in a directory of its own, named by it (OUT/TASK-SxI[-pD][-jF]), so that the runs of
 # another setting, or of the task before its shipped setting changed, are never taken for this
 # one's.
-out=$out/$task-${substeps}x${iterations}${PREDICTION:+-p$PREDICTION}
+out=$out/$task-${substeps}x${iterations}${PREDICTION:+-p$PREDICTION}${LIMIT_HZ:+-j$LIMIT_HZ}
 fine=$((10 * substeps))
 mkdir -p "$out"
 one() {

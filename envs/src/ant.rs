@@ -60,7 +60,7 @@
 
 use crate::physics::{
     add_floor, clip_actions, colliders_contact_wrench, new_world, Articulation, Geom, LinkDesc,
-    Robot, RootJoint, SimParams,
+    Robot, RootJoint, SimParams, RAPIER_LIMIT_FREQUENCY,
 };
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
@@ -97,6 +97,7 @@ pub const SIM: SimParams = SimParams {
     substeps: 5,
     solver_iterations: 1,
     prediction_distance: PREDICTION_DISTANCE,
+    limit_frequency: RAPIER_LIMIT_FREQUENCY,
 };
 const PREDICTION_DISTANCE: f32 = 0.1;
 const INIT_Z: f32 = 0.75;

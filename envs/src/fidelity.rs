@@ -11,8 +11,8 @@
 //! A setting is `STEPSxITERATIONS`, optionally followed by `/cHZ@ZETA` (contact softness: natural
 //! frequency Hz and damping ratio, for floor and self contacts) and `/pMETRES` (rapier's
 //! prediction distance), `/e` or `/i` (the articulation's Coriolis terms explicit or rapier's
-//! semi-implicit default: [`crate::physics::Articulation::set_explicit_coriolis`]), `/jHZ@ZETA`
-//! (every hinge's joint-limit softness); without
+//! semi-implicit default: [`crate::physics::Articulation::set_explicit_coriolis`]), `/jHZ@1`
+//! (every hinge's joint-limit frequency, [`SimParams::limit_frequency`]; damping ratio 1); without
 //! `FIDELITY` every task is measured at its shipped `SIM`.
 //! `FIDELITY_SEEDS=N` measures seeds 0..N instead of 0–2.
 
@@ -151,7 +151,8 @@ fn parse(task: &str, spec: &str) -> (SimParams, PhysicsTuning) {
             tuning.softness = Some((hz.parse().unwrap(), zeta.parse().unwrap()));
         } else if let Some(j) = p.strip_prefix('j') {
             let (hz, zeta) = j.split_once('@').expect("jHZ@ZETA");
-            tuning.limit_softness = Some((hz.parse().unwrap(), zeta.parse().unwrap()));
+            assert_eq!(zeta, "1", "limits have damping ratio 1: /jHZ@1");
+            sim.limit_frequency = hz.parse().unwrap();
         } else if p == "e" {
             tuning.explicit_coriolis = Some(true);
         } else if p == "i" {

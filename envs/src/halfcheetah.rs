@@ -35,7 +35,7 @@
 
 use crate::physics::{
     add_floor, clip_actions, new_world, set_total_mass, Articulation, Geom, LinkDesc, Robot,
-    RootJoint, SimParams,
+    RootJoint, SimParams, RAPIER_LIMIT_FREQUENCY,
 };
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
@@ -96,6 +96,7 @@ pub const SIM: SimParams = SimParams {
     substeps: 5,
     solver_iterations: 4,
     prediction_distance: PREDICTION_DISTANCE,
+    limit_frequency: RAPIER_LIMIT_FREQUENCY,
 };
 /// Rapier's contact prediction distance, m (its default is 2 cm): the cheetah's feet move
 /// fast against 10 ms steps, and contacts found only once a foot is already inside the floor

@@ -25,7 +25,7 @@
 
 use crate::physics::{
     add_floor, clip_actions, new_world, Articulation, Geom, LinkDesc, Robot, RootJoint, SimParams,
-    RAPIER_PREDICTION_DISTANCE,
+    RAPIER_LIMIT_FREQUENCY, RAPIER_PREDICTION_DISTANCE,
 };
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
@@ -50,6 +50,7 @@ pub const SIM: SimParams = SimParams {
     substeps: 1,
     solver_iterations: 8,
     prediction_distance: RAPIER_PREDICTION_DISTANCE,
+    limit_frequency: RAPIER_LIMIT_FREQUENCY,
 };
 const INIT_Z: f32 = 1.25;
 const RESET_NOISE: f32 = 5e-3;

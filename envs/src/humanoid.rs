@@ -70,7 +70,7 @@
 
 use crate::physics::{
     add_floor, clip_actions, colliders_contact_wrench, new_world, Articulation, Geom, LinkDesc,
-    Robot, RootJoint, SimParams,
+    Robot, RootJoint, SimParams, RAPIER_LIMIT_FREQUENCY,
 };
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
@@ -101,6 +101,7 @@ pub const SIM: SimParams = SimParams {
     substeps: 2,
     solver_iterations: 2,
     prediction_distance: PREDICTION,
+    limit_frequency: RAPIER_LIMIT_FREQUENCY,
 };
 /// Rapier's contact prediction distance, m: contacts are found this far ahead, so a foot
 /// moving at a few m/s in a 7.5 ms step does not sink into the floor before its contact
@@ -167,6 +168,8 @@ pub struct HumanoidOptions {
     pub solver_iterations: Option<usize>,
     /// Overrides [`SIM`]'s contact prediction distance, m.
     pub prediction_distance: Option<f32>,
+    /// Overrides [`SIM`]'s joint-limit frequency, Hz.
+    pub limit_frequency: Option<f32>,
 }
 
 impl Default for HumanoidOptions {
@@ -179,6 +182,7 @@ impl Default for HumanoidOptions {
             substeps: None,
             solver_iterations: None,
             prediction_distance: None,
+            limit_frequency: None,
         }
     }
 }
@@ -190,6 +194,7 @@ impl HumanoidOptions {
             substeps: self.substeps,
             solver_iterations: self.solver_iterations,
             prediction_distance: self.prediction_distance,
+            limit_frequency: self.limit_frequency,
         }
     }
 

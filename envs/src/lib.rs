@@ -220,7 +220,8 @@ fn parse_options<T: serde::de::DeserializeOwned>(
 }
 
 /// A robot's physics settings: its `default`, overridden by the `substeps`,
-/// `solver_iterations` and `prediction_distance` keys of `options` (its only keys).
+/// `solver_iterations`, `prediction_distance` and `limit_frequency` keys of `options` (its only
+/// keys).
 fn physics_options(
     env: &str,
     options: &EnvOptions,
@@ -451,12 +452,12 @@ mod tests {
         ] {
             let e = err(name, "substeps = 0");
             assert!(
-                e.contains(name) && e.contains("`substeps` must be 1 to 64, got 0"),
+                e.contains(name) && e.contains("`substeps` must be 1 to 640, got 0"),
                 "{e}"
             );
-            let e = err(name, "solver_iterations = 65");
+            let e = err(name, "solver_iterations = 641");
             assert!(
-                e.contains("`solver_iterations` must be 1 to 64, got 65"),
+                e.contains("`solver_iterations` must be 1 to 640, got 641"),
                 "{e}"
             );
             let e = err(name, "prediction_distance = 0.0");
@@ -464,9 +465,17 @@ mod tests {
                 e.contains("`prediction_distance` must be above 0 and at most 1 m, got 0"),
                 "{e}"
             );
+            let e = err(name, "limit_frequency = 2e6");
+            assert!(
+                e.contains("`limit_frequency` must be above 0 and at most 1000000 Hz"),
+                "{e}"
+            );
             assert!(make_with(
                 name,
-                &table("substeps = 3\nsolver_iterations = 2\nprediction_distance = 0.01")
+                &table(
+                    "substeps = 3\nsolver_iterations = 2\nprediction_distance = 0.01\n\
+                     limit_frequency = 16"
+                )
             )
             .is_ok());
         }
@@ -500,6 +509,10 @@ mod tests {
         let shipped = halfcheetah::SIM.prediction_distance;
         assert_eq!(default, gait(&format!("prediction_distance = {shipped}")));
         assert_ne!(default, gait("prediction_distance = 0.005"));
+        // The joint limits' frequency matters once a hinge reaches its limit.
+        let limit = halfcheetah::SIM.limit_frequency;
+        assert_eq!(default, gait(&format!("limit_frequency = {limit}")));
+        assert_ne!(default, gait("limit_frequency = 16"));
         // fpc-assembly's tolerances are options: read, and checked by the env.
         let e = err("fpc-assembly", "lateral_tol_mm = -0.1");
         assert!(

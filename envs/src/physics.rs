@@ -52,13 +52,31 @@ pub struct SimParams {
     /// apart. A contact found ahead of touching can act within the step ("speculative"), so at
     /// coarse steps a large distance lets a fast foot push off the floor before it touches it.
     pub prediction_distance: f32,
+    /// Natural frequency of every hinge's joint-limit constraint, Hz (damping ratio 1, as
+    /// rapier's joints and MuJoCo's default `solref` have). Rapier's default,
+    /// [`RAPIER_LIMIT_FREQUENCY`], is a hard limit: it removes a violation within one solver
+    /// pass, so the velocity it leaves grows with the passes per control step (issue 32: a
+    /// walker reset 4 mrad past a knee limit spun at 33 rad/s after one 8 ms step at 40 × 8,
+    /// 0.9 at 4 × 2). MuJoCo's default limit (`solref` 0.02, 1) is a spring of about
+    /// [`MUJOCO_LIMIT_FREQUENCY`].
+    pub limit_frequency: f32,
 }
 
 /// Rapier's own default prediction distance, m.
 pub const RAPIER_PREDICTION_DISTANCE: f32 = 0.02;
 
-/// A user's override of a robot's [`SimParams`] (the keys `substeps`, `solver_iterations` and
-/// `prediction_distance` of a run's `[env_options]`): trade speed for integration accuracy.
+/// Rapier's default joint-constraint frequency, Hz: a hard limit.
+pub const RAPIER_LIMIT_FREQUENCY: f32 = 1.0e6;
+
+/// The frequency of MuJoCo's default limit, Hz: `solref` (time constant 0.02 s, damping ratio
+/// 1) with `solimp`'s 0.95 is a spring of 1 / (0.95 × 0.02) rad/s, about 8.4 Hz.
+pub const MUJOCO_LIMIT_FREQUENCY: f32 = 8.4;
+
+/// The damping ratio of every joint limit: 1, rapier's default and MuJoCo's.
+const LIMIT_DAMPING_RATIO: f32 = 1.0;
+
+/// A user's override of a robot's [`SimParams`] (the keys `substeps`, `solver_iterations`,
+/// `prediction_distance` and `limit_frequency` of a run's `[env_options]`): trade speed for integration accuracy.
 /// Unset keys keep the robot's own choice, documented at each robot's `SIM`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -69,13 +87,17 @@ pub struct PhysicsOptions {
     pub solver_iterations: Option<usize>,
     /// Rapier's contact prediction distance, m.
     pub prediction_distance: Option<f32>,
+    /// The hinges' joint-limit frequency, Hz ([`SimParams::limit_frequency`]).
+    pub limit_frequency: Option<f32>,
 }
 
 /// The largest [`PhysicsOptions::prediction_distance`], m: a contact a metre away is not one.
 pub const MAX_PREDICTION_DISTANCE: f32 = 1.0;
 
-/// The most of `substeps` or `solver_iterations`: beyond it a control step takes seconds.
-pub const MAX_PHYSICS_STEPS: usize = 64;
+/// The most of `substeps` or `solver_iterations`: 10× the finest setting worth training at (64),
+/// so that any such setting can be replayed 10× finer (issue 32's convergence check); a control
+/// step at the most takes about a second.
+pub const MAX_PHYSICS_STEPS: usize = 640;
 
 impl PhysicsOptions {
     /// `default` with these overrides, or a message naming the bad key.
@@ -98,6 +120,17 @@ impl PhysicsOptions {
                 ))
             }
         };
+        let limit_frequency = match self.limit_frequency {
+            None => default.limit_frequency,
+            Some(hz) if hz > 0.0 && hz <= RAPIER_LIMIT_FREQUENCY => hz,
+            Some(hz) => {
+                return Err(format!(
+                    "`limit_frequency` must be above 0 and at most {RAPIER_LIMIT_FREQUENCY} Hz \
+                     (a hard limit), got {hz} (the default is {})",
+                    default.limit_frequency
+                ))
+            }
+        };
         Ok(SimParams {
             control_dt: default.control_dt,
             substeps: check("substeps", self.substeps, default.substeps)?,
@@ -107,6 +140,7 @@ impl PhysicsOptions {
                 default.solver_iterations,
             )?,
             prediction_distance,
+            limit_frequency,
         })
     }
 }
@@ -424,6 +458,18 @@ impl Articulation {
     /// integrator treats them explicitly too.
     pub fn set_explicit_coriolis(&self, w: &mut PhysicsWorld, explicit: bool) {
         self.multibody_mut(w).set_explicit_coriolis(explicit);
+    }
+
+    /// Sets every hinge's joint-limit frequency ([`SimParams::limit_frequency`]).
+    pub fn set_limit_frequency(&self, w: &mut PhysicsWorld, hz: f32) {
+        for &body in &self.bodies[1..] {
+            let (mb, id) = w
+                .multibody_joints
+                .get_mut(MultibodyJointHandle(body.0))
+                .expect("robot link");
+            let joint = &mut mb.link_mut(id).expect("robot link").joint;
+            joint.data.softness = SpringCoefficients::new(hz, LIMIT_DAMPING_RATIO);
+        }
     }
 
     /// Number of generalized coordinates (`qpos`).
@@ -797,8 +843,6 @@ pub struct PhysicsTuning {
     pub softness: Option<(f32, f32)>,
     /// The articulation's Coriolis terms explicit (see [`Articulation::set_explicit_coriolis`]).
     pub explicit_coriolis: Option<bool>,
-    /// Joint-limit softness (natural frequency Hz, damping ratio) of every hinge.
-    pub limit_softness: Option<(f32, f32)>,
 }
 
 impl PhysicsTuning {
@@ -811,23 +855,13 @@ impl PhysicsTuning {
         if let Some(e) = self.explicit_coriolis {
             art.set_explicit_coriolis(w, e);
         }
-        if let Some((hz, zeta)) = self.limit_softness {
-            for i in 1..art.bodies.len() {
-                let (mb, id) = w
-                    .multibody_joints
-                    .get_mut(MultibodyJointHandle(art.bodies[i].0))
-                    .expect("robot link");
-                let joint = &mut mb.link_mut(id).expect("robot link").joint;
-                joint.data.softness = SpringCoefficients::new(hz, zeta);
-            }
-        }
     }
 }
 
 impl Robot {
     /// The robot of `build` at its rest pose, integrated with `sim`.
     pub fn new(sim: SimParams, build: fn(&SimParams) -> (PhysicsWorld, Articulation)) -> Self {
-        let (world, links) = build(&sim);
+        let (world, links) = Self::fresh(&sim, build);
         Self {
             world,
             links,
@@ -835,6 +869,16 @@ impl Robot {
             build,
             tuning: PhysicsTuning::default(),
         }
+    }
+
+    /// The robot's world as `build` makes it, with `sim`'s joint limits.
+    fn fresh(
+        sim: &SimParams,
+        build: fn(&SimParams) -> (PhysicsWorld, Articulation),
+    ) -> (PhysicsWorld, Articulation) {
+        let (mut world, links) = build(sim);
+        links.set_limit_frequency(&mut world, sim.limit_frequency);
+        (world, links)
     }
 
     /// Applies `tuning` now and to every world built from here on.
@@ -845,7 +889,7 @@ impl Robot {
 
     /// Puts the robot at `qpos`/`qvel` (see [`Articulation::set_state`]) in a fresh world.
     pub fn restart(&mut self, qpos: &[f32], qvel: &[f32]) {
-        let (mut world, links) = (self.build)(&self.sim);
+        let (mut world, links) = Self::fresh(&self.sim, self.build);
         self.tuning.apply(&mut world, &links);
         links.set_state(&mut world, qpos, qvel);
         self.world = world;
@@ -992,6 +1036,7 @@ mod tests {
             substeps: 1,
             solver_iterations: 4,
             prediction_distance: RAPIER_PREDICTION_DISTANCE,
+            limit_frequency: RAPIER_LIMIT_FREQUENCY,
         };
         let mut w = new_world(&p);
         add_floor(&mut w, 1.0);
@@ -1072,6 +1117,7 @@ mod tests {
             substeps: 1,
             solver_iterations,
             prediction_distance: RAPIER_PREDICTION_DISTANCE,
+            limit_frequency: RAPIER_LIMIT_FREQUENCY,
         };
         let mut w = new_world(&p);
         add_floor(&mut w, 1.0);
@@ -1176,6 +1222,7 @@ mod tests {
             substeps: 1,
             solver_iterations: 4,
             prediction_distance: RAPIER_PREDICTION_DISTANCE,
+            limit_frequency: RAPIER_LIMIT_FREQUENCY,
         };
         let mut w = new_world(&p);
         w.gravity = Vector::ZERO;

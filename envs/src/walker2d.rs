@@ -35,7 +35,7 @@
 
 use crate::physics::{
     add_floor, clip_actions, new_world, Articulation, Geom, LinkDesc, Robot, RootJoint, SimParams,
-    RAPIER_PREDICTION_DISTANCE,
+    RAPIER_LIMIT_FREQUENCY, RAPIER_PREDICTION_DISTANCE,
 };
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
@@ -63,6 +63,7 @@ pub const SIM: SimParams = SimParams {
     substeps: 4,
     solver_iterations: 2,
     prediction_distance: RAPIER_PREDICTION_DISTANCE,
+    limit_frequency: RAPIER_LIMIT_FREQUENCY,
 };
 const INIT_Z: f32 = 1.25;
 const RESET_NOISE: f32 = 5e-3;
@@ -398,6 +399,71 @@ mod tests {
             "mean random episode length {mean}: {lens:?}"
         );
         assert!(lens.iter().all(|n| (5..200).contains(n)), "{lens:?}");
+    }
+
+    /// How far the joint limits give at `sim`: the worst overshoot past each hinge's range, rad,
+    /// under saturated bang-bang torques flipping every 7 control steps (seeds 0–3, 500 steps
+    /// each, termination ignored: the fallen walker's light feet are pressed against their
+    /// limits). `deploy/compare/mujoco_limit_overshoot.py Walker2d-v5` measures it on MuJoCo.
+    fn overshoot(sim: SimParams) -> [f32; NA] {
+        let ranges: Vec<[f32; 2]> = links().iter().skip(1).map(|l| l.range.unwrap()).collect();
+        let mut env = Walker2d::with_sim(sim);
+        let mut worst = [0.0f32; NA];
+        for seed in 0..4 {
+            env.reset(Some(seed));
+            for t in 0..500 {
+                let s = if (t / 7) % 2 == 0 { 1.0 } else { -1.0 };
+                env.step(&[s, -s, s, -s, s, -s]);
+                let q = env.qpos();
+                for (k, [lo, hi]) in ranges.iter().enumerate() {
+                    worst[k] = worst[k].max((q[3 + k] - hi).max(lo - q[3 + k]));
+                }
+            }
+        }
+        worst
+    }
+
+    /// The torso's pitch rate after one zero-action step at `sim` from rest with the right
+    /// thigh 4 mrad past its upper limit (a reset's noise puts hinges that far past the limits
+    /// at 0), rad/s; the MuJoCo script above measures it too.
+    fn reset_spin(sim: SimParams) -> f32 {
+        let mut env = Walker2d::with_sim(sim);
+        let mut q = [0.0; NQ];
+        (q[1], q[3]) = (INIT_Z, 0.004);
+        env.set_state(&q, &[0.0; NQ]);
+        env.step(&[0.0; NA]);
+        env.qvel()[2]
+    }
+
+    /// How the limits behave per frequency (docs/results/fidelity.md) at 4 × 2 and 40 × 2,
+    /// and the reset's spin at 40 × 8.
+    /// `cargo test --release -p selkd-envs walker2d::tests::limit_frequencies -- --ignored
+    /// --nocapture`
+    #[test]
+    #[ignore]
+    fn limit_frequencies() {
+        println!("| limit Hz | setting | worst overshoot, rad, per hinge | pitch rate after the reset's violation, rad/s | at 40 × 8 |");
+        println!("|---|---|---|---|---|");
+        for hz in [RAPIER_LIMIT_FREQUENCY, 100.0, 50.0, 36.0, 25.0, 16.0, 8.4] {
+            let at = |substeps, solver_iterations| SimParams {
+                substeps,
+                solver_iterations,
+                limit_frequency: hz,
+                ..SIM
+            };
+            let spin_40x8 = reset_spin(at(40, 8));
+            for (s, i) in [(4, 2), (40, 2)] {
+                let w: Vec<String> = overshoot(at(s, i))
+                    .iter()
+                    .map(|x| format!("{x:.3}"))
+                    .collect();
+                let spin = reset_spin(at(s, i));
+                println!(
+                    "| {hz} | {s} × {i} | {} | {spin:.3} | {spin_40x8:.3} |",
+                    w.join(", ")
+                );
+            }
+        }
     }
 
     use crate::gaits::{sine_pd, WALKER2D as GAIT};
