@@ -56,9 +56,11 @@ pub struct SimParams {
     /// rapier's joints and MuJoCo's default `solref` have). Rapier's default,
     /// [`RAPIER_LIMIT_FREQUENCY`], is a hard limit: it removes a violation within one solver
     /// pass, so the velocity it leaves grows with the passes per control step (issue 32: a
-    /// walker reset 4 mrad past a knee limit spun at 33 rad/s after one 8 ms step at 40 × 8,
-    /// 0.9 at 4 × 2). MuJoCo's default limit (`solref` 0.02, 1) is a spring of about
-    /// [`MUJOCO_LIMIT_FREQUENCY`].
+    /// walker reset 4 mrad past a thigh limit spun at 33 rad/s after one 8 ms step at 40 × 8,
+    /// 0.85 at 4 × 2; MuJoCo 0.04), and its give shrinks with them. About 16 Hz gives the
+    /// overshoot of MuJoCo's default limits on the walker (`walker2d::tests::limit_frequencies`,
+    /// `deploy/compare/mujoco_limit_overshoot.py`): MuJoCo's 0.02 s `solref` is about 8 Hz, but
+    /// its impedance takes most of a load at once, which a plain spring does not.
     pub limit_frequency: f32,
 }
 
@@ -67,10 +69,6 @@ pub const RAPIER_PREDICTION_DISTANCE: f32 = 0.02;
 
 /// Rapier's default joint-constraint frequency, Hz: a hard limit.
 pub const RAPIER_LIMIT_FREQUENCY: f32 = 1.0e6;
-
-/// The frequency of MuJoCo's default limit, Hz: `solref` (time constant 0.02 s, damping ratio
-/// 1) with `solimp`'s 0.95 is a spring of 1 / (0.95 × 0.02) rad/s, about 8.4 Hz.
-pub const MUJOCO_LIMIT_FREQUENCY: f32 = 8.4;
 
 /// The damping ratio of every joint limit: 1, rapier's default and MuJoCo's.
 const LIMIT_DAMPING_RATIO: f32 = 1.0;
