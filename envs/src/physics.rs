@@ -74,7 +74,8 @@ pub const RAPIER_LIMIT_FREQUENCY: f32 = 1.0e6;
 const LIMIT_DAMPING_RATIO: f32 = 1.0;
 
 /// A user's override of a robot's [`SimParams`] (the keys `substeps`, `solver_iterations`,
-/// `prediction_distance` and `limit_frequency` of a run's `[env_options]`): trade speed for integration accuracy.
+/// `prediction_distance` and `limit_frequency` of a run's `[env_options]`): trade speed for
+/// integration accuracy.
 /// Unset keys keep the robot's own choice, documented at each robot's `SIM`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]

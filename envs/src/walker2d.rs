@@ -480,7 +480,10 @@ mod tests {
     #[test]
     #[ignore]
     fn limit_frequencies() {
-        println!("| limit Hz | setting | worst overshoot, rad, per hinge | pitch rate after the reset's violation, rad/s | at 40 × 8 |");
+        println!(
+            "| limit Hz | setting | worst overshoot, rad, per hinge \
+             | pitch rate after the reset's violation, rad/s | at 40 × 8 |"
+        );
         println!("|---|---|---|---|---|");
         for hz in [RAPIER_LIMIT_FREQUENCY, 100.0, 50.0, 36.0, 25.0, 16.0, 8.4] {
             let at = |substeps, solver_iterations| SimParams {
