@@ -91,7 +91,7 @@ def test_the_assembly_task_reports_success_in_info():
         (lambda: gym.make("selkd/Pendulum-v0", gravity=3.0), "gravity"),
         (lambda: gym.make("selkd/Pendulum-v0", g="strong"), "g"),
         (lambda: gym.make("selkd/Pendulum-v0", g=-1.0), "g = -1 must be a positive number"),
-        (lambda: gym.make("selkd/Hopper-v0", substeps=0), "`substeps` must be 1 to 64, got 0"),
+        (lambda: gym.make("selkd/Hopper-v0", substeps=0), "`substeps` must be 1 to 640, got 0"),
         (lambda: gym.make("selkd/Pendulum-v0", render_mode="human"), "render_mode='human'"),
         (lambda: selkd.SelkdEnv("pendulm"), "unknown env `pendulm`"),
         (lambda: gym.make_vec("selkd/Hopper-v0", num_envs=0), "num_envs must be at least 1"),

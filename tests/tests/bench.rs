@@ -41,7 +41,7 @@ fn bench_env_steps_the_env_with_its_options() {
     for (args, want) in [
         (
             vec!["halfcheetah", "--env-options", "substeps = 0"],
-            "`substeps` must be 1 to 64",
+            "`substeps` must be 1 to 640",
         ),
         (
             vec!["hopper", "--env-options", "g = 1.0"],
