@@ -1506,4 +1506,25 @@ mod tests {
         assert!((100.02..110.0).contains(&wall), "{wall}");
         let _ = std::fs::remove_dir_all(dir);
     }
+
+    /// `run.device`: "cpu", or CUDA where libtorch sees it; otherwise a one-line error that says
+    /// what to write instead (on this CPU-only CI the CUDA branch is the error).
+    #[test]
+    fn devices_parse_and_cuda_without_a_gpu_is_a_clear_error() {
+        assert!(matches!(parse_device("cpu").unwrap(), Device::Cpu));
+        for s in ["cuda", "cuda:0"] {
+            match parse_device(s) {
+                Ok(d) => assert!(tch::Cuda::is_available() && d == Device::Cuda(0), "{s}"),
+                Err(e) => {
+                    assert!(!tch::Cuda::is_available(), "{s}: {e}");
+                    assert!(e.to_string().contains("use --set run.device=cpu"), "{e}");
+                }
+            }
+        }
+        let e = parse_device("gpu").unwrap_err().to_string();
+        assert!(
+            e.contains("use cpu, cuda or cuda:N") && !e.contains('\n'),
+            "{e}"
+        );
+    }
 }
