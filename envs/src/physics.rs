@@ -108,28 +108,30 @@ impl PhysicsOptions {
                 "`{key}` must be 1 to {MAX_PHYSICS_STEPS}, got {n} (the default is {default})"
             )),
         };
-        let prediction_distance = match self.prediction_distance {
-            None => default.prediction_distance,
-            Some(d) if d > 0.0 && d <= MAX_PREDICTION_DISTANCE => d,
-            Some(d) => {
-                return Err(format!(
-                    "`prediction_distance` must be above 0 and at most {MAX_PREDICTION_DISTANCE} \
-                     m, got {d} (the default is {})",
-                    default.prediction_distance
-                ))
-            }
-        };
-        let limit_frequency = match self.limit_frequency {
-            None => default.limit_frequency,
-            Some(hz) if hz > 0.0 && hz <= RAPIER_LIMIT_FREQUENCY => hz,
-            Some(hz) => {
-                return Err(format!(
-                    "`limit_frequency` must be above 0 and at most {RAPIER_LIMIT_FREQUENCY} Hz \
-                     (a hard limit), got {hz} (the default is {})",
-                    default.limit_frequency
-                ))
-            }
-        };
+        // A positive amount up to `max`, in `unit`.
+        let positive =
+            |key: &str, value: Option<f32>, default: f32, max: f32, unit: &str| match value {
+                None => Ok(default),
+                Some(x) if x > 0.0 && x <= max => Ok(x),
+                Some(x) => Err(format!(
+                    "`{key}` must be above 0 and at most {max} {unit}, got {x} (the default is \
+                     {default})"
+                )),
+            };
+        let prediction_distance = positive(
+            "prediction_distance",
+            self.prediction_distance,
+            default.prediction_distance,
+            MAX_PREDICTION_DISTANCE,
+            "m",
+        )?;
+        let limit_frequency = positive(
+            "limit_frequency",
+            self.limit_frequency,
+            default.limit_frequency,
+            RAPIER_LIMIT_FREQUENCY,
+            "Hz (a hard limit)",
+        )?;
         Ok(SimParams {
             control_dt: default.control_dt,
             substeps: check("substeps", self.substeps, default.substeps)?,

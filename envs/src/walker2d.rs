@@ -458,10 +458,7 @@ mod tests {
                 MUJOCO[k]
             );
         }
-        let finer = |sim: SimParams| SimParams {
-            substeps: 10 * sim.substeps,
-            ..sim
-        };
+        use crate::fidelity::finer;
         for sim in [soft, finer(soft)] {
             let spin = reset_spin(sim);
             assert!(spin.abs() < 0.1, "pitch rate {spin} rad/s at {sim:?}");
