@@ -95,18 +95,31 @@ fn format_of(out: &Path) -> Result<Format> {
     }
 }
 
-/// `--env-options` as JSON (`{"g": 12.0}`) or TOML (`g = 12.0`).
+/// `--env-options` as JSON (`{"g": 12.0}`) or TOML (`g = 12.0`), several TOML keys on one line
+/// separated by commas (`substeps = 40, solver_iterations = 2`, a TOML inline table's body) or
+/// by newlines.
 pub fn parse_env_options(text: &str) -> Result<EnvOptions> {
     if text.trim_start().starts_with('{') {
-        serde_json::from_str(text)
-            .map_err(|e| anyhow!("--env-options is not a JSON object of options: {e}"))
-    } else {
-        toml::from_str(text).map_err(|e: toml::de::Error| {
-            anyhow!(
-                "--env-options is neither a JSON object nor TOML (`key = value`): {}",
-                e.message().trim()
-            )
-        })
+        return serde_json::from_str(text)
+            .map_err(|e| anyhow!("--env-options is not a JSON object of options: {e}"));
+    }
+    let as_lines = toml::from_str(text);
+    let Err(e) = as_lines else {
+        return Ok(as_lines.unwrap());
+    };
+    #[derive(serde::Deserialize)]
+    struct Inline {
+        o: EnvOptions,
+    }
+    // Only when the lines do not parse, so a key's own error (an unknown key, a bad value) is
+    // reported as the lines' error.
+    match toml::from_str::<Inline>(&format!("o = {{ {} }}", text.trim())) {
+        Ok(i) => Ok(i.o),
+        Err(_) => Err(anyhow!(
+            "--env-options is neither a JSON object nor TOML (`key = value`, several keys \
+             separated by commas or newlines): {}",
+            e.message().trim()
+        )),
     }
 }
 
@@ -391,6 +404,15 @@ mod tests {
         let toml = parse_env_options("g = 12.0").unwrap();
         assert_eq!(json, toml);
         assert!(parse_env_options("g = = 1").is_err());
+        // Several keys on one command line: commas (an inline table's body) or newlines.
+        let commas = parse_env_options("g = 12.0, substeps = 40").unwrap();
+        let lines = parse_env_options("g = 12.0\nsubsteps = 40").unwrap();
+        assert_eq!(commas, lines);
+        assert_eq!(commas.len(), 2, "{commas:?}");
+        let e = parse_env_options("g = 12.0, substeps")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("commas or newlines"), "{e}");
     }
 
     #[test]
