@@ -470,10 +470,18 @@ mod tests {
                 e.contains("`limit_frequency` must be above 0 and at most 1000000 Hz"),
                 "{e}"
             );
+            // Soft limits' explicit damping needs 4π·frequency·step ≤ 1: 500 Hz is too stiff
+            // for every robot's own step, and the message says what to set.
+            let e = err(name, "limit_frequency = 500");
+            assert!(
+                e.contains("`limit_frequency` 500 Hz is too stiff")
+                    && e.contains("set `substeps` to at least"),
+                "{e}"
+            );
             assert!(make_with(
                 name,
                 &table(
-                    "substeps = 3\nsolver_iterations = 2\nprediction_distance = 0.01\n\
+                    "substeps = 30\nsolver_iterations = 2\nprediction_distance = 0.01\n\
                      limit_frequency = 16"
                 )
             )
@@ -512,7 +520,8 @@ mod tests {
         // The joint limits' frequency matters once a hinge reaches its limit.
         let limit = halfcheetah::SIM.limit_frequency;
         assert_eq!(default, gait(&format!("limit_frequency = {limit}")));
-        assert_ne!(default, gait("limit_frequency = 16"));
+        // (7 Hz: the softest the cheetah's 10 ms steps allow is 8.)
+        assert_ne!(default, gait("limit_frequency = 7"));
         // fpc-assembly's tolerances are options: read, and checked by the env.
         let e = err("fpc-assembly", "lateral_tol_mm = -0.1");
         assert!(

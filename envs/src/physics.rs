@@ -52,16 +52,47 @@ pub struct SimParams {
     /// apart. A contact found ahead of touching can act within the step ("speculative"), so at
     /// coarse steps a large distance lets a fast foot push off the floor before it touches it.
     pub prediction_distance: f32,
-    /// Natural frequency of every hinge's joint-limit constraint, Hz (damping ratio 1, as
-    /// rapier's joints and MuJoCo's default `solref` have). Rapier's default,
-    /// [`RAPIER_LIMIT_FREQUENCY`], is a hard limit: it removes a violation within one solver
-    /// pass, so the velocity it leaves grows with the passes per control step (issue 32: a
-    /// walker reset 4 mrad past a thigh limit spun at 33 rad/s after one 8 ms step at 40 × 8,
-    /// 0.85 at 4 × 2; MuJoCo 0.04), and its give shrinks with them. About 16 Hz gives the
-    /// overshoot of MuJoCo's default limits on the walker (`walker2d::tests::limit_frequencies`,
-    /// `deploy/compare/mujoco_limit_overshoot.py`): MuJoCo's 0.02 s `solref` is about 8 Hz, but
-    /// its impedance takes most of a load at once, which a plain spring does not.
+    /// Natural frequency of every hinge's joint limit, Hz. Rapier's default,
+    /// [`RAPIER_LIMIT_FREQUENCY`], is its hard limit constraint: it removes a violation within
+    /// one solver pass, so the velocity it leaves grows with the passes per control step (issue
+    /// 32: a walker reset 4 mrad past a thigh limit spun at 33 rad/s after one 8 ms step at
+    /// 40 × 8, 0.85 at 4 × 2; MuJoCo 0.04), and its give shrinks with them. Below it, each
+    /// limit is a spring–damper of this frequency and damping ratio 1 on the hinge's coordinate
+    /// (explicit, as MuJoCo's `solref`; see [`Articulation::set_limit_frequency`]), which gives
+    /// the same at any number of solver passes and converges with the step: rapier's own soft
+    /// limit constraint did neither. About 16 Hz gives the overshoot of MuJoCo's default
+    /// limits on the walker on the geometric mean over its hinges
+    /// (`walker2d::tests::limit_frequencies`, `deploy/compare/mujoco_limit_overshoot.py`):
+    /// MuJoCo's 0.02 s `solref` is about 8 Hz, but its impedance takes most of a load at once,
+    /// which a plain spring does not. Soft limits need `4π·frequency·step ≤ 1`
+    /// ([`SimParams::check_limit`]).
     pub limit_frequency: f32,
+}
+
+impl SimParams {
+    /// Whether soft limits of [`Self::limit_frequency`] are stable at this step: their damping is
+    /// explicit, so it needs `2ζωh ≤ 1` (ω = 2π·frequency, ζ = 1, h the rapier step), MuJoCo's
+    /// rule for its `solref` (a time constant of at least two steps) in other words. Hard limits
+    /// (rapier's constraints) need nothing.
+    pub fn check_limit(&self) -> Result<(), String> {
+        let hz = self.limit_frequency;
+        if hz >= RAPIER_LIMIT_FREQUENCY {
+            return Ok(());
+        }
+        let h = self.control_dt / self.substeps as f32;
+        let damping_h = 4.0 * std::f32::consts::PI * LIMIT_DAMPING_RATIO * hz * h;
+        if damping_h <= 1.0 {
+            return Ok(());
+        }
+        let substeps = (self.substeps as f32 * damping_h).ceil() as usize;
+        let max_hz = 1.0 / (4.0 * std::f32::consts::PI * LIMIT_DAMPING_RATIO * h);
+        Err(format!(
+            "`limit_frequency` {hz} Hz is too stiff for rapier steps of {:.3} ms (soft limits \
+             need 4π·frequency·step ≤ 1): set `substeps` to at least {substeps}, or \
+             `limit_frequency` to at most {max_hz:.1}",
+            h * 1e3
+        ))
+    }
 }
 
 /// Rapier's own default prediction distance, m.
@@ -132,7 +163,7 @@ impl PhysicsOptions {
             RAPIER_LIMIT_FREQUENCY,
             "Hz (a hard limit)",
         )?;
-        Ok(SimParams {
+        let sim = SimParams {
             control_dt: default.control_dt,
             substeps: check("substeps", self.substeps, default.substeps)?,
             solver_iterations: check(
@@ -142,7 +173,9 @@ impl PhysicsOptions {
             )?,
             prediction_distance,
             limit_frequency,
-        })
+        };
+        sim.check_limit()?;
+        Ok(sim)
     }
 }
 
@@ -324,6 +357,21 @@ pub struct Articulation {
     colliders: Vec<Vec<ColliderHandle>>,
     nq: usize,
     nv: usize,
+    /// Each link's hinge range (`None` for the root and unlimited hinges).
+    ranges: Vec<Option<[f32; 2]>>,
+    /// The limits as springs, when soft ([`Articulation::set_limit_frequency`]).
+    soft_limits: Option<SoftLimits>,
+}
+
+/// Soft joint limits as spring–dampers on each limited hinge's coordinate, computed by us
+/// instead of rapier's limit constraint (see [`Articulation::set_limit_frequency`]).
+#[derive(Clone, Debug)]
+struct SoftLimits {
+    /// Angular frequency, rad/s.
+    omega: f32,
+    /// Each link's apparent inertia at its hinge at the rest pose, kg·m² (1 / MuJoCo's
+    /// `dof_invweight0`, armature included); 0 for the root.
+    inertia: Vec<f32>,
 }
 
 impl Articulation {
@@ -417,6 +465,8 @@ impl Articulation {
             parents,
             axes_in_parent,
             colliders,
+            ranges: links.iter().map(|l| l.range).collect(),
+            soft_limits: None,
         };
 
         // Settle the multibody's root type (fixed anchor: no free root dofs), then the per-dof
@@ -461,15 +511,75 @@ impl Articulation {
         self.multibody_mut(w).set_explicit_coriolis(explicit);
     }
 
-    /// Sets every hinge's joint-limit frequency ([`SimParams::limit_frequency`]).
-    pub fn set_limit_frequency(&self, w: &mut PhysicsWorld, hz: f32) {
+    /// Sets every hinge's joint-limit frequency ([`SimParams::limit_frequency`]) on the robot
+    /// at its rest pose. At [`RAPIER_LIMIT_FREQUENCY`] (or above) the limits are rapier's hard
+    /// constraints. Below, they are springs of that frequency and damping ratio 1 on each hinge's
+    /// coordinate, which [`Robot::step`] applies as torques each rapier step: rapier's own soft
+    /// limit held 2.2× stiffer at 8 solver passes a control step than at 320 (the walker's
+    /// hinges in the air under full torque, `walker2d::tests::soft_limit_in_the_air`), so a
+    /// policy trained at a coarse setting learned to lean on limits that give way finer.
+    pub fn set_limit_frequency(&mut self, w: &mut PhysicsWorld, hz: f32) {
+        let soft = hz < RAPIER_LIMIT_FREQUENCY;
         for &body in &self.bodies[1..] {
             let (mb, id) = w
                 .multibody_joints
                 .get_mut(MultibodyJointHandle(body.0))
                 .expect("robot link");
             let joint = &mut mb.link_mut(id).expect("robot link").joint;
-            joint.data.softness = SpringCoefficients::new(hz, LIMIT_DAMPING_RATIO);
+            if soft {
+                joint.data.limit_axes.remove(JointAxesMask::ANG_X);
+            } else {
+                joint.data.softness = SpringCoefficients::new(hz, LIMIT_DAMPING_RATIO);
+            }
+        }
+        self.soft_limits = soft.then(|| {
+            let bodies = &w.bodies;
+            let mb = w
+                .multibody_joints
+                .get_mut(MultibodyJointHandle(self.bodies[0].0))
+                .expect("robot multibody")
+                .0;
+            let inv = mb.dof_inverse_inertia(bodies);
+            let mut inertia = vec![0.0; self.bodies.len()];
+            for (i, x) in inertia.iter_mut().enumerate().skip(1) {
+                *x = 1.0 / inv[self.dof(w, i)];
+            }
+            SoftLimits {
+                omega: 2.0 * std::f32::consts::PI * hz,
+                inertia,
+            }
+        });
+    }
+
+    /// With soft limits, each hinge's limit torque (N·m, hinge order) from the current state,
+    /// added to `torques`; nothing with rapier's hard limits. A hinge past its range by `r`
+    /// (moving outward at `u`) is pushed back by the spring–damper `I·(ω²·r + 2ζω·u)` (`I` its
+    /// rest-pose apparent inertia), explicit in the state as MuJoCo's soft constraints are, and
+    /// only pushing back, as a limit does. Explicit damping needs `2ζωh ≤ 1` for a rapier step
+    /// of `h` s ([`SimParams::check_limit`]).
+    pub fn add_limit_torques(&self, w: &PhysicsWorld, torques: &mut [f32]) {
+        let Some(soft) = &self.soft_limits else {
+            return;
+        };
+        let (q, v) = (self.qpos(w), self.qvel(w));
+        let (root_nq, root_nv) = (self.root.nq(), self.root.nv());
+        let omega = soft.omega;
+        let damping = 2.0 * LIMIT_DAMPING_RATIO * omega;
+        for i in 1..self.bodies.len() {
+            let Some([lo, hi]) = self.ranges[i] else {
+                continue;
+            };
+            let (qi, vi) = (q[root_nq + i - 1], v[root_nv + i - 1]);
+            // s: +1 past the upper end, −1 past the lower; r the distance past it.
+            let (s, r) = if qi > hi {
+                (1.0, qi - hi)
+            } else if qi < lo {
+                (-1.0, lo - qi)
+            } else {
+                continue;
+            };
+            let push = soft.inertia[i] * (omega * omega * r + damping * s * vi);
+            torques[i - 1] -= s * push.max(0.0);
         }
     }
 
@@ -877,7 +987,10 @@ impl Robot {
         sim: &SimParams,
         build: fn(&SimParams) -> (PhysicsWorld, Articulation),
     ) -> (PhysicsWorld, Articulation) {
-        let (mut world, links) = build(sim);
+        if let Err(e) = sim.check_limit() {
+            panic!("{e}");
+        }
+        let (mut world, mut links) = build(sim);
         links.set_limit_frequency(&mut world, sim.limit_frequency);
         (world, links)
     }
@@ -897,11 +1010,16 @@ impl Robot {
         self.links = links;
     }
 
-    /// One control step: the joint `torques` (N·m, one per hinge) held over the rapier steps.
+    /// One control step: the joint `torques` (N·m, one per hinge) held over the rapier steps
+    /// (with soft limits, each step's limit torques added to them).
     pub fn step(&mut self, torques: &[f32]) {
+        let mut with_limits = torques.to_vec();
         for _ in 0..self.sim.substeps {
+            with_limits.copy_from_slice(torques);
+            self.links.add_limit_torques(&self.world, &mut with_limits);
             // Rapier's user forces persist until cleared; `apply_joint_torques` sets them anew.
-            self.links.apply_joint_torques(&mut self.world, torques);
+            self.links
+                .apply_joint_torques(&mut self.world, &with_limits);
             self.world.step();
         }
     }

@@ -437,10 +437,11 @@ mod tests {
 
     /// Issue 32 (docs/results/fidelity.md): 16 Hz limits give about as far as MuJoCo's soft
     /// ones under the same torques (`mujoco_limit_overshoot.py Walker2d-v5 4`: 0.212, 0.275,
-    /// 0.702, 0.212, 0.283, 0.708 rad, hinges in action order) and leave a reset's small
-    /// violation alone at 4 × 2 and 10× finer (MuJoCo's pitch rate after the step: 0.043
-    /// rad/s), where rapier's hard limits, the walker's [`SIM`], turn it into a spin that grows
-    /// with the solver passes.
+    /// 0.702, 0.212, 0.283, 0.708 rad, hinges in action order; ours 0.56–1.97× of these per
+    /// hinge, about 1× on the geometric mean: a spring is not MuJoCo's impedance, which takes
+    /// more of a slow load) and turn a reset's small violation into no more than a slow pitch at
+    /// 4 × 2 and 10× finer alike (MuJoCo's pitch rate after the step: 0.043 rad/s), where rapier's
+    /// hard limits, the walker's [`SIM`], turn it into a spin that grows with the solver passes.
     #[test]
     fn soft_limits_give_as_mujocos_do_and_hard_ones_spin_the_walker() {
         const MUJOCO: [f32; NA] = [0.212, 0.275, 0.702, 0.212, 0.283, 0.708];
@@ -449,15 +450,22 @@ mod tests {
             ..SIM
         };
         let worst = overshoot(soft);
+        let mut log_ratio = 0.0;
         for k in 0..NA {
             let ratio = worst[k] / MUJOCO[k];
+            log_ratio += ratio.ln() / NA as f32;
             assert!(
-                (0.5..1.5).contains(&ratio),
+                (0.4..2.5).contains(&ratio),
                 "hinge {k}: overshoot {} rad against MuJoCo's {}: {worst:?}",
                 worst[k],
                 MUJOCO[k]
             );
         }
+        let mean = log_ratio.exp();
+        assert!(
+            (0.75..1.33).contains(&mean),
+            "overshoot {mean}× MuJoCo's on the geometric mean: {worst:?}"
+        );
         use crate::fidelity::finer;
         for sim in [soft, finer(soft)] {
             let spin = reset_spin(sim);
@@ -482,7 +490,7 @@ mod tests {
              | pitch rate after the reset's violation, rad/s | at 40 × 8 |"
         );
         println!("|---|---|---|---|---|");
-        for hz in [RAPIER_LIMIT_FREQUENCY, 100.0, 50.0, 36.0, 25.0, 16.0, 8.4] {
+        for hz in [RAPIER_LIMIT_FREQUENCY, 36.0, 25.0, 16.0, 12.0, 8.4] {
             let at = |substeps, solver_iterations| SimParams {
                 substeps,
                 solver_iterations,
@@ -500,6 +508,105 @@ mod tests {
                     "| {hz} | {s} × {i} | {} | {spin:.3} | {spin_40x8:.3} |",
                     w.join(", ")
                 );
+            }
+        }
+    }
+
+    /// The walker high in the air (no contact) at rest, hinge `k` at `q0` and the other hinges
+    /// at 0, hinge `k` driven by `action` for `steps` control steps: hinge `k`'s angles after each.
+    fn driven_in_the_air(sim: SimParams, k: usize, q0: f32, action: f32, steps: usize) -> Vec<f32> {
+        let mut env = Walker2d::with_sim(sim);
+        let mut q = [0.0; NQ];
+        q[1] = 20.0;
+        q[3 + k] = q0;
+        env.set_state(&q, &[0.0; NQ]);
+        let mut a = [0.0; NA];
+        a[k] = action;
+        (0..steps)
+            .map(|_| {
+                env.step(&a);
+                env.qpos()[3 + k]
+            })
+            .collect()
+    }
+
+    /// Soft limits are springs that converge: in the air, each hinge held against its upper
+    /// limit by full torque τ settles at the same overshoot at the shipped 4 × 2, at 4 × 1 and
+    /// 10× finer (within 2%), and near where a 16 Hz spring holds τ, `r = τ / (I·ω²)`, `I` the
+    /// hinge's apparent inertia at the rest pose measured here from its acceleration under the
+    /// same torque (within 25%: the spring's `I` is rapier's `dof_inverse_inertia`, MuJoCo's
+    /// `dof_invweight0`, which came out 3–22% below what rapier's own steps show). Rapier's own
+    /// soft limit (what `limit_frequency` set before) held 0.30, 0.46 and 0.93 rad on the thigh
+    /// at 4 × 1, 4 × 2 and 40 × 2, converging at 320 passes to 1.01: a policy trained on the
+    /// coarse one leaned on a limit that gives way finer.
+    #[test]
+    fn soft_limits_hold_a_load_as_a_spring_at_any_setting() {
+        let ranges: Vec<[f32; 2]> = links().iter().skip(1).map(|l| l.range.unwrap()).collect();
+        let omega = 2.0 * std::f32::consts::PI * 16.0;
+        let at = |substeps, solver_iterations| SimParams {
+            substeps,
+            solver_iterations,
+            limit_frequency: 16.0,
+            ..SIM
+        };
+        for (k, [lo, hi]) in ranges.iter().enumerate() {
+            // From rest at the rest pose, driven into the range for one 8 ms step integrated
+            // 100× finer: Δq = τ/I·t²/2.
+            let dq = driven_in_the_air(at(400, 1), k, 0.0, -1.0, 1)[0];
+            assert!(dq < 0.0 && dq > *lo, "hinge {k} moved {dq} rad");
+            let inertia = GEAR * CONTROL_DT * CONTROL_DT / (2.0 * -dq);
+            let spring = GEAR / (inertia * omega * omega);
+            let held = |s, i| driven_in_the_air(at(s, i), k, hi - 0.3, 1.0, 30)[29] - hi;
+            let shipped = held(4, 2);
+            assert!(
+                (shipped / spring - 1.0).abs() < 0.25,
+                "hinge {k}: held {shipped} rad past its limit at 4 × 2, a 16 Hz spring on \
+                 I = {inertia} kg·m² holds {spring}"
+            );
+            for (s, i) in [(4, 1), (40, 2)] {
+                let other = held(s, i);
+                assert!(
+                    (other / shipped - 1.0).abs() < 0.02,
+                    "hinge {k}: held {other} rad past its limit at {s} × {i}, {shipped} at 4 × 2"
+                );
+            }
+        }
+    }
+
+    /// The measurement behind that test: each hinge's worst overshoot and its overshoot after
+    /// 30 control steps of full torque, per setting, with our springs (16 Hz) and rapier's hard
+    /// limits.
+    /// `cargo test --release -p selkd-envs walker2d::tests::soft_limit_in_the_air -- --ignored
+    /// --nocapture`
+    #[test]
+    #[ignore]
+    fn soft_limit_in_the_air() {
+        let ranges: Vec<[f32; 2]> = links().iter().skip(1).map(|l| l.range.unwrap()).collect();
+        for hz in [16.0, RAPIER_LIMIT_FREQUENCY] {
+            println!("limit {hz} Hz: hinge: worst overshoot / overshoot after 30 steps, rad");
+            for (s, i) in [
+                (4, 1),
+                (4, 2),
+                (4, 4),
+                (8, 2),
+                (16, 2),
+                (40, 2),
+                (40, 8),
+                (160, 2),
+            ] {
+                let sim = SimParams {
+                    substeps: s,
+                    solver_iterations: i,
+                    limit_frequency: hz,
+                    ..SIM
+                };
+                let mut row = format!("{s:>3} × {i}:");
+                for (k, [_, hi]) in ranges.iter().enumerate() {
+                    let q = driven_in_the_air(sim, k, hi - 0.3, 1.0, 30);
+                    let worst = q.iter().fold(f32::MIN, |m, x| m.max(x - hi));
+                    row += &format!(" {worst:.3}/{:.3}", q[29] - hi);
+                }
+                println!("{row}");
             }
         }
     }
