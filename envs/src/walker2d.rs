@@ -55,15 +55,21 @@ const CONTROL_DT: f32 = 0.008;
 /// 1×2 0.36 rad, 1×4 0.15, 2×4 0.085, 4×2 0.070, 4×4 0.037 rad. 4×2 holds them to ~4° at about
 /// half the cost of 4×4.
 ///
-/// Convergence (issue 32, `docs/results/fidelity.md`, `tests::fidelity`): the `sine_pd` gait at
-/// 4×2 against 40×2, 24 seeds: return 4% and episode length 2% apart, distance 25% (the gait
-/// falls after ~150 steps, ~0.3 m). 4×4 and 2×4 are no better (17–20% distance).
+/// (Those overshoots are of rapier's hard limits, shipped until the thirteenth session.)
+///
+/// Joint limits: springs of 16 Hz ([`SimParams::limit_frequency`]), about as soft as MuJoCo's
+/// on the geometric mean over the hinges. Rapier's hard limits gave less the more solver passes
+/// a step had and spun the walker at fine settings; rapier's own soft limit held 2.2× stiffer
+/// at 8 passes than converged, and policies trained on it lost 37–145% integrated 10× finer.
+/// With the springs, our SAC's policies (30k env steps, 3 seeds, 50 episodes) keep their
+/// return and episode length 10× finer within 3% and 9% on the mean (4–8% and 4–17% per
+/// seed), and the scripted gait within 8% (seeds 0–9): `docs/results/fidelity.md`.
 pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
     substeps: 4,
     solver_iterations: 2,
     prediction_distance: RAPIER_PREDICTION_DISTANCE,
-    limit_frequency: RAPIER_LIMIT_FREQUENCY,
+    limit_frequency: 16.0,
 };
 const INIT_Z: f32 = 1.25;
 const RESET_NOISE: f32 = 5e-3;
@@ -315,9 +321,9 @@ mod tests {
             assert!(n <= 1000);
         }
         // Saturated bang-bang torques for 500 steps, ignoring termination: no NaN, nothing
-        // sinks into the floor, joint limits held to within 5° (measured worst 0.07 rad over 4
-        // seeds, on the fallen walker whose light feet are pressed by the floor against their
-        // limits; MuJoCo's limits are soft and give way too).
+        // sinks into the floor, joint limits held to within 30° (the 16 Hz springs' worst over
+        // 4 seeds: 0.24–0.42 rad a hinge; MuJoCo's soft limits give 0.21–0.71 under the same
+        // torques).
         env.reset(Some(1));
         for t in 0..500 {
             let s = if (t / 7) % 2 == 0 { 1.0 } else { -1.0 };
@@ -326,10 +332,10 @@ mod tests {
             let q = env.qpos();
             assert!(q[1] > 0.0, "torso centre below the floor: {q:?}");
             for k in [3, 4, 6, 7] {
-                assert!(q[k] > deg(-155.0) && q[k] < deg(5.0), "joint {k}: {q:?}");
+                assert!(q[k] > deg(-180.0) && q[k] < deg(30.0), "joint {k}: {q:?}");
             }
             for k in [5, 8] {
-                assert!(q[k] > deg(-50.0) && q[k] < deg(50.0), "foot {k}: {q:?}");
+                assert!(q[k] > deg(-75.0) && q[k] < deg(75.0), "foot {k}: {q:?}");
             }
         }
         // NaN and out-of-range actions are tolerated.
@@ -471,7 +477,11 @@ mod tests {
             let spin = reset_spin(sim);
             assert!(spin.abs() < 0.1, "pitch rate {spin} rad/s at {sim:?}");
         }
-        let (coarse, fine) = (reset_spin(SIM), reset_spin(finer(SIM)));
+        let hard = SimParams {
+            limit_frequency: RAPIER_LIMIT_FREQUENCY,
+            ..SIM
+        };
+        let (coarse, fine) = (reset_spin(hard), reset_spin(finer(hard)));
         assert!(
             coarse.abs() > 0.5 && fine.abs() > 5.0 * coarse.abs(),
             "hard limits: pitch rate {coarse} rad/s at 4 × 2, {fine} at 40 × 2"
@@ -611,11 +621,46 @@ mod tests {
         }
     }
 
+    /// How [`GAIT`] was found: hill-climbing from the previous gait on the mean forward
+    /// distance of seeds 100–107 at [`SIM`], Gaussian steps of 5% of each parameter's size
+    /// plus 0.01 (seeded, so reproducible): `cargo test --release -p selkd-envs
+    /// walker2d::tests::climb_gait -- --ignored --nocapture` (`CLIMB_ITERS=800` gave
+    /// [`GAIT`]).
+    #[test]
+    #[ignore]
+    fn climb_gait() {
+        let mut env = Walker2d::new();
+        let mut score = |p: &[f32; 13]| {
+            (100..108)
+                .map(|s| episode(&mut env, s, |o, t| sine_pd(p, o, t)).0)
+                .sum::<f32>()
+                / 8.0
+        };
+        let iters: usize = std::env::var("CLIMB_ITERS").map_or(600, |v| v.parse().unwrap());
+        let mut rng =
+            Pcg64::seed_from_u64(std::env::var("CLIMB_SEED").map_or(7, |v| v.parse().unwrap()));
+        let mut best = GAIT;
+        let mut best_score = score(&best);
+        println!("start {best_score:.3}");
+        for i in 0..iters {
+            let mut p = best;
+            for x in p.iter_mut() {
+                let z: f32 = rng.sample(rand_distr::StandardNormal);
+                *x += z * (0.05 * x.abs() + 0.01);
+            }
+            let sc = score(&p);
+            if sc > best_score {
+                (best, best_score) = (p, sc);
+                println!("{i}: {best_score:.3} {best:?}");
+            }
+        }
+    }
+
     use crate::gaits::{sine_pd, WALKER2D as GAIT};
 
-    /// The gait is modest (a short open-loop search, not a learned policy): measured ~0.5 m in
-    /// ~115 steps before it falls (seeds 0–2; 0.84 m over 781 steps on seed 101), where the
-    /// unpowered walker folds up, slides back ~0.08 m and terminates after ~45–70 steps.
+    /// The gait is modest (a short open-loop search, not a learned policy): a lunge of ~0.55 m
+    /// in ~95 steps before it falls (seeds 0–9), where the unpowered walker folds up and slides
+    /// back ~0.2 m in about as many steps.
     #[test]
     fn scripted_gait_beats_standing_still() {
         let mut env = Walker2d::new();
@@ -623,14 +668,15 @@ mod tests {
             let (still, ns, _) = episode(&mut env, seed, |_, _| [0.0; NA]);
             let (moving, n, _) = episode(&mut env, seed, |o, t| sine_pd(&GAIT, o, t));
             assert!(
-                moving > still + 0.3 && moving > 0.3 && n > ns + 30,
+                moving > still + 0.3 && moving > 0.3 && n > 50,
                 "seed {seed}: gait {moving} m in {n} steps vs standing {still} m in {ns}"
             );
         }
     }
 
     /// Issue 32's reward band: a uniform random policy's and a standing (zero-action) policy's
-    /// mean returns over seeds 0–9. The bands are our own measurement at [`SIM`] (random −0.3, standing 67.1),
+    /// mean returns over seeds 0–9. The bands are our own measurement at [`SIM`] (random 0.3,
+    /// standing 89.4 with the 16 Hz limit springs; −0.3 and 67.1 with the hard limits before),
     /// widened by about 30 and a half, not a MuJoCo measurement: a physics or reward change that moves
     /// either far (a reward paying for an exploit, standing that no longer stands) fails here.
     #[test]
