@@ -520,7 +520,7 @@ mod tests {
         // The joint limits' frequency matters once a hinge reaches its limit.
         let limit = halfcheetah::SIM.limit_frequency;
         assert_eq!(default, gait(&format!("limit_frequency = {limit}")));
-        // (7 Hz: the softest the cheetah's 10 ms steps allow is 8.)
+        // (7 Hz: the stiffest springs the cheetah's 10 ms steps allow are 8 Hz.)
         assert_ne!(default, gait("limit_frequency = 7"));
         // fpc-assembly's tolerances are options: read, and checked by the env.
         let e = err("fpc-assembly", "lateral_tol_mm = -0.1");
