@@ -26,19 +26,20 @@ import argparse
 import csv
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import time
 
 
-def sh(cmd, timeout):
+def sh(cmd, timeout, env=None):
     """Runs `cmd`: "ok", "fail", or "timeout". Then whatever is left of its process group is
     killed, so no cargo or test binary outlives it holding the build lock or the ports, and no
     `selkd train` that a failed test left behind (its learner dies with it) runs on with a
     mutant: one such learner grew to 21 GB in 40 minutes."""
     p = subprocess.Popen(cmd, shell=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                         start_new_session=True)
+                         start_new_session=True, env=env)
     try:
         try:
             result = "ok" if p.wait(timeout=timeout) == 0 else "fail"
@@ -111,6 +112,14 @@ def run_one(a, m, w, f, i, total):
     """Applies mutant `m`, builds and runs the stages, restores the file and writes its row (no
     row if the reading is stopped midway)."""
     t0 = time.time()
+    # The stages' temporary files in a directory of the mutant's own, removed after it: a test
+    # killed at its timeout leaves its run directory behind, and a mutant that makes the
+    # learner log without end (`next_to_log` → `Some((0, 0))`) wrote 15 GB a test into /tmp in
+    # 15 minutes, three times over, until the disk was full.
+    tmp = os.path.abspath(os.path.join("target", "mutants-e2e", "tmp"))
+    shutil.rmtree(tmp, ignore_errors=True)
+    os.makedirs(tmp)
+    env = dict(os.environ, TMPDIR=tmp)
     try:
         subprocess.run(["patch", "-s", "-p0", m["file"]], input=m["diff"], text=True, check=True)
         outcome, stage = "unviable", ""
@@ -124,12 +133,13 @@ def run_one(a, m, w, f, i, total):
             outcome = "missed"
             for n, cmd in enumerate(a.stage, 1):
                 limit = a.stage_timeout[n - 1] if n <= len(a.stage_timeout) else a.timeout
-                r = sh(cmd, limit)
+                r = sh(cmd, limit, env)
                 if r != "ok":
                     outcome, stage = ("caught" if r == "fail" else "timeout"), str(n)
                     break
     finally:
         subprocess.run(["git", "checkout", "--", m["file"]], check=True)
+        shutil.rmtree(tmp, ignore_errors=True)
     secs = round(time.time() - t0)
     w.writerow([m["name"], outcome, stage, secs])
     f.flush()
