@@ -25,7 +25,7 @@
 
 use crate::physics::{
     add_floor, clip_actions, new_world, Articulation, Geom, LinkDesc, Robot, RootJoint, SimParams,
-    RAPIER_LIMIT_FREQUENCY, RAPIER_PREDICTION_DISTANCE,
+    RAPIER_PREDICTION_DISTANCE,
 };
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};

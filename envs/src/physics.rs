@@ -533,12 +533,7 @@ impl Articulation {
             }
         }
         self.soft_limits = soft.then(|| {
-            let bodies = &w.bodies;
-            let mb = w
-                .multibody_joints
-                .get_mut(MultibodyJointHandle(self.bodies[0].0))
-                .expect("robot multibody")
-                .0;
+            let (bodies, mb) = self.bodies_and_multibody(w);
             let inv = mb.dof_inverse_inertia(bodies);
             let mut inertia = vec![0.0; self.bodies.len()];
             for (i, x) in inertia.iter_mut().enumerate().skip(1) {
@@ -612,10 +607,21 @@ impl Articulation {
     }
 
     fn multibody_mut<'a>(&self, w: &'a mut PhysicsWorld) -> &'a mut Multibody {
-        w.multibody_joints
+        self.bodies_and_multibody(w).1
+    }
+
+    /// The world's rigid bodies beside the robot's multibody (rapier's multibody calls that
+    /// read the bodies while changing the multibody need both at once).
+    fn bodies_and_multibody<'a>(
+        &self,
+        w: &'a mut PhysicsWorld,
+    ) -> (&'a RigidBodySet, &'a mut Multibody) {
+        let mb = w
+            .multibody_joints
             .get_mut(MultibodyJointHandle(self.bodies[0].0))
             .expect("robot multibody")
-            .0
+            .0;
+        (&w.bodies, mb)
     }
 
     fn link<'a>(&self, w: &'a PhysicsWorld, i: usize) -> &'a MultibodyLink {
@@ -703,12 +709,7 @@ impl Articulation {
             vel[d] = qvel[root_nv + i - 1];
         }
         let free = self.root == RootJoint::Free;
-        let bodies = &w.bodies;
-        let mb = w
-            .multibody_joints
-            .get_mut(MultibodyJointHandle(self.bodies[0].0))
-            .expect("robot multibody")
-            .0;
+        let (bodies, mb) = self.bodies_and_multibody(w);
         if free {
             mb.forward_kinematics(bodies, true);
         }

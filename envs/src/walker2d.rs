@@ -35,7 +35,7 @@
 
 use crate::physics::{
     add_floor, clip_actions, new_world, Articulation, Geom, LinkDesc, Robot, RootJoint, SimParams,
-    RAPIER_LIMIT_FREQUENCY, RAPIER_PREDICTION_DISTANCE,
+    RAPIER_PREDICTION_DISTANCE,
 };
 use crate::{Env, EnvSpec, Step};
 use rand::{Rng, SeedableRng};
@@ -268,6 +268,7 @@ impl Env for Walker2d {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::physics::RAPIER_LIMIT_FREQUENCY;
     use crate::testing::random_actions;
 
     /// Runs one episode of `policy` (obs, step → action) from `seed`; returns (forward progress
