@@ -103,9 +103,9 @@ pub fn parse_env_options(text: &str) -> Result<EnvOptions> {
         return serde_json::from_str(text)
             .map_err(|e| anyhow!("--env-options is not a JSON object of options: {e}"));
     }
-    let as_lines = toml::from_str(text);
-    let Err(e) = as_lines else {
-        return Ok(as_lines.unwrap());
+    let e = match toml::from_str(text) {
+        Ok(options) => return Ok(options),
+        Err(e) => e,
     };
     #[derive(serde::Deserialize)]
     struct Inline {

@@ -80,12 +80,14 @@ impl SimParams {
             return Ok(());
         }
         let h = self.control_dt / self.substeps as f32;
-        let damping_h = 4.0 * std::f32::consts::PI * LIMIT_DAMPING_RATIO * hz * h;
+        // 2ζωh per Hz of the limit's frequency.
+        let per_hz = 4.0 * std::f32::consts::PI * LIMIT_DAMPING_RATIO * h;
+        let damping_h = per_hz * hz;
         if damping_h <= 1.0 {
             return Ok(());
         }
         let substeps = (self.substeps as f32 * damping_h).ceil() as usize;
-        let max_hz = 1.0 / (4.0 * std::f32::consts::PI * LIMIT_DAMPING_RATIO * h);
+        let max_hz = 1.0 / per_hz;
         Err(format!(
             "`limit_frequency` {hz} Hz is too stiff for rapier steps of {:.3} ms (soft limits \
              need 4π·frequency·step ≤ 1): set `substeps` to at least {substeps}, or \
@@ -544,6 +546,11 @@ impl Articulation {
                 inertia,
             }
         });
+    }
+
+    /// Whether the limits are our springs ([`Articulation::set_limit_frequency`]).
+    pub fn has_soft_limits(&self) -> bool {
+        self.soft_limits.is_some()
     }
 
     /// With soft limits, each hinge's limit torque (N·m, hinge order) from the current state,
@@ -1014,13 +1021,19 @@ impl Robot {
     /// One control step: the joint `torques` (N·m, one per hinge) held over the rapier steps
     /// (with soft limits, each step's limit torques added to them).
     pub fn step(&mut self, torques: &[f32]) {
-        let mut with_limits = torques.to_vec();
+        // Only soft limits change the torques from one rapier step to the next.
+        let mut with_limits = Vec::new();
         for _ in 0..self.sim.substeps {
-            with_limits.copy_from_slice(torques);
-            self.links.add_limit_torques(&self.world, &mut with_limits);
+            let applied = if self.links.has_soft_limits() {
+                with_limits.clear();
+                with_limits.extend_from_slice(torques);
+                self.links.add_limit_torques(&self.world, &mut with_limits);
+                &with_limits
+            } else {
+                torques
+            };
             // Rapier's user forces persist until cleared; `apply_joint_torques` sets them anew.
-            self.links
-                .apply_joint_torques(&mut self.world, &with_limits);
+            self.links.apply_joint_torques(&mut self.world, applied);
             self.world.step();
         }
     }
