@@ -452,7 +452,7 @@ mod tests {
     #[ignore]
     fn climb_gait() {
         let mut env = Hopper::new();
-        let mut score = |w: &[f32; 36]| {
+        let score = |w: &[f32; 36]| {
             (100..103)
                 .map(|s| {
                     let p = |o: &[f32]| -> [f32; 3] {
@@ -466,18 +466,12 @@ mod tests {
                 / 3.0
         };
         let mut rng = Pcg64::seed_from_u64(32);
-        let (mut best, mut best_score) = (GAIT, score(&GAIT));
-        for i in 0..400 {
-            let mut w = best;
+        let perturb = |w: &mut [f32; 36], rng: &mut Pcg64| {
             for x in w.iter_mut() {
                 *x += 0.05 * (rng.gen::<f32>() + rng.gen::<f32>() + rng.gen::<f32>() - 1.5) * 2.0;
             }
-            let sc = score(&w);
-            if sc > best_score {
-                (best, best_score) = (w, sc);
-                println!("{i}: {best_score:.1}");
-            }
-        }
+        };
+        let (best, best_score) = crate::testing::hill_climb(GAIT, 400, &mut rng, perturb, score);
         println!("{best_score:.1} {best:?}");
     }
 }

@@ -30,6 +30,30 @@ pub(crate) fn sinking(robot: &crate::physics::Robot) -> f32 {
     deepest
 }
 
+/// `iters` steps of hill-climbing from `start`: each perturbs the best parameters so far with
+/// `perturb` and keeps the result if `score` rises. Prints the start and each improvement;
+/// returns the best and its score. (The scripted gaits' searches, ignored tests run by hand.)
+pub(crate) fn hill_climb<const N: usize, R: Rng>(
+    start: [f32; N],
+    iters: usize,
+    rng: &mut R,
+    mut perturb: impl FnMut(&mut [f32; N], &mut R),
+    mut score: impl FnMut(&[f32; N]) -> f64,
+) -> ([f32; N], f64) {
+    let (mut best, mut best_score) = (start, score(&start));
+    println!("start {best_score:.3}");
+    for i in 0..iters {
+        let mut p = best;
+        perturb(&mut p, rng);
+        let sc = score(&p);
+        if sc > best_score {
+            (best, best_score) = (p, sc);
+            println!("{i}: {best_score:.3} {best:?}");
+        }
+    }
+    (best, best_score)
+}
+
 /// One scripted episode's summary.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Ep {
