@@ -261,14 +261,17 @@ fn longest_stall(dir: &Path, total: u64) -> (f64, u64) {
 }
 
 /// Issue 30: an async run whose worker 0 is SIGKILLed again each time it is back (its restart
-/// back-off grows 0.5, 1, 2, 4, 8, 10 s) until 90 % of the budget is in: the other workers take its share, so progress never stops
-/// for long, and the run still takes exactly its env-step budget at G updates per K transitions.
+/// back-off grows 0.5, 1, 2, 4, 8 s) six times: the other workers take its share, so progress never
+/// stops for long, and the run still takes exactly its env-step budget at G updates per K
+/// transitions. The budget is large enough that a fast machine is still running when the fifth
+/// death's 4 s back-off begins (CI's did 15k env steps in 5 s, before it); after the sixth kill the
+/// run finishes on its own.
 /// (Before, each worker had a fixed share of the budget: the others finished theirs and the run
 /// stood still while worker 0 waited out each back-off.)
 #[test]
 fn an_async_run_does_not_wait_for_a_worker_that_keeps_dying() {
     let dir = temp_dir("async-kills");
-    let total = 15_000u64;
+    let total = 60_000u64;
     let mut child = spawn(train(
         &dir,
         &small_run(&[
@@ -289,8 +292,7 @@ fn an_async_run_does_not_wait_for_a_worker_that_keeps_dying() {
     let deadline = Instant::now() + Duration::from_secs(240);
     let mut kills = 0;
     let mut seen: Option<(i32, Instant)> = None;
-    // At most 12 kills: the launcher gives up on a worker after 20 deaths in 10 minutes.
-    while env_steps_so_far(&dir) < total * 9 / 10 && kills < 12 {
+    while env_steps_so_far(&dir) < total * 9 / 10 && kills < 6 {
         assert!(Instant::now() < deadline, "the run made no progress");
         match (worker_pids(&id, 0).first().copied(), seen) {
             // Each new process of worker 0 gets 0.3 s (to join and step a little), then dies.
