@@ -87,6 +87,12 @@ def main():
     files = sorted({m["file"] for m in mutants})
     dirty = subprocess.run(["git", "status", "--porcelain", "--", *files], capture_output=True, text=True).stdout
     if dirty.strip():
+        diff = subprocess.run(["git", "diff", "--", *files], capture_output=True, text=True).stdout
+        if "changed by cargo-mutants" in diff:
+            # A reading killed without a signal it could catch (the machine went away) leaves
+            # its mutant in the source.
+            sys.exit(f"mutants_e2e: a killed reading left a mutant in {' '.join(files)} (git diff shows "
+                     f"'changed by cargo-mutants'); restore it with: git checkout -- {' '.join(files)}")
         sys.exit(f"mutants_e2e: uncommitted changes in {' '.join(files)}; commit or stash them first")
     done = set()
     if os.path.exists(a.out):
