@@ -154,6 +154,13 @@ fn run_inner(args: EvalArgs) -> Result<()> {
             options_text(&cfg.env_options)
         )
     })?;
+    let env_changes = env_changes_since_training(&checkpoint, &cfg);
+    if let Some(changes) = env_changes.as_ref().filter(|c| !c.is_empty()) {
+        eprintln!(
+            "selkd eval: note: this env is not the one the policy trained on ({})",
+            changes.join("; ")
+        );
+    }
     let mut results = vec![];
     for &i in &indices {
         let loaded = load_actor(&checkpoint, Some(i))?;
@@ -171,7 +178,14 @@ fn run_inner(args: EvalArgs) -> Result<()> {
         });
     }
     let text = if args.json {
-        json(&checkpoint, &cfg, best.index, &seeds, &results) + "\n"
+        json(
+            &checkpoint,
+            &cfg,
+            best.index,
+            &seeds,
+            &results,
+            &env_changes,
+        ) + "\n"
     } else {
         table(
             &checkpoint,
@@ -185,6 +199,15 @@ fn run_inner(args: EvalArgs) -> Result<()> {
     // A closed pipe is not worth a panic.
     let _ = std::io::stdout().lock().write_all(text.as_bytes());
     Ok(())
+}
+
+/// How the env evaluated here (this build's, with any `--env-options`) differs from the one
+/// the checkpoint last trained on: `None` for a checkpoint from before env records.
+fn env_changes_since_training(checkpoint: &Path, cfg: &Config) -> Option<Vec<String>> {
+    let state = selkd_learner::checkpoint::check_complete(checkpoint).ok()?;
+    let trained = &state.env.last()?.record;
+    let now = selkd_envs::EnvRecord::of(&cfg.run.env, &cfg.env_options).ok()?;
+    Some(trained.differences(&now))
 }
 
 /// A run's `[env_options]` on one line: `g = 9.0, substeps = 50`.
@@ -210,6 +233,7 @@ fn json(
     best: usize,
     seeds: &[u64],
     results: &[ActorResult],
+    env_changes: &Option<Vec<String>>,
 ) -> String {
     let actors: Vec<serde_json::Value> = results
         .iter()
@@ -232,6 +256,8 @@ fn json(
         "checkpoint": checkpoint.display().to_string(),
         "env": cfg.run.env,
         "env_options": cfg.env_options,
+        // What differs from the env the policy trained on (empty: nothing; null: not recorded).
+        "env_changes_since_training": env_changes,
         "episodes": seeds.len(),
         "seeds": seeds,
         "best": best,
@@ -353,8 +379,15 @@ mod tests {
                 && rows[3].ends_with("0%"),
             "{t}"
         );
-        let j: serde_json::Value =
-            serde_json::from_str(&json(Path::new("ck"), &cfg, 1, &[5, 6, 7, 8], &results)).unwrap();
+        let j: serde_json::Value = serde_json::from_str(&json(
+            Path::new("ck"),
+            &cfg,
+            1,
+            &[5, 6, 7, 8],
+            &results,
+            &None,
+        ))
+        .unwrap();
         assert_eq!(j["actors"][0]["success_rate"], 0.75);
         assert!(j["actors"][1]["std_return"].is_null());
         assert_eq!(j["actors"][1]["best"], true);

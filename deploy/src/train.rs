@@ -46,6 +46,11 @@ pub struct TrainArgs {
     /// Give up on a worker that died more than this many times within --restart-window.
     #[arg(long, default_value_t = 20)]
     max_restarts: usize,
+    /// With --resume: continue even though this build's env (its physics settings or dynamics,
+    /// `env` in the checkpoint's state.json) differs from the one the run trained on; the change
+    /// is recorded in the checkpoints.
+    #[arg(long, requires = "resume")]
+    accept_env_change: bool,
     /// The window (seconds) in which --max-restarts counts a worker's deaths.
     #[arg(long, default_value_t = 600.0, value_parser = parse_restart_window, allow_hyphen_values = true)]
     restart_window: f64,
@@ -154,6 +159,9 @@ pub fn run(mut args: TrainArgs) -> Result<i32> {
         (None, None) => QUICK_CONFIG.to_string(),
     };
     let cfg = Config::from_toml_with_overrides(&text, &args.set)?;
+    if let Some(checkpoint) = &args.resume {
+        check_env_to_resume(checkpoint, &cfg, args.accept_env_change)?;
+    }
     // A device that is not there is a config error, found before any process starts.
     let device = selkd_learner::service::parse_device(&cfg.run.device)?;
     selkd_learner::service::check_matmul(cfg.algo.critic_matmul, device)?;
@@ -406,6 +414,20 @@ fn die_with_parent(c: &mut Command) {
     }
 }
 
+/// A resumed run's env against the one its checkpoint records, checked here so that a changed
+/// physics is one line before any process starts (the learner checks again, for runs it is
+/// given by hand).
+fn check_env_to_resume(checkpoint: &Path, cfg: &Config, accept_change: bool) -> Result<()> {
+    let state =
+        selkd_learner::checkpoint::check_complete(checkpoint).map_err(anyhow::Error::msg)?;
+    let now = selkd_envs::EnvRecord::of(&cfg.run.env, &cfg.env_options)?;
+    let (_, note) = selkd_learner::checkpoint::continue_env_history(&state, &now, accept_change)?;
+    if let Some(note) = note {
+        say!("selkd: {note}");
+    }
+    Ok(())
+}
+
 /// The config a checkpoint was trained with, as TOML.
 fn checkpoint_config(checkpoint: &Path) -> Result<String> {
     let path = checkpoint.join("state.json");
@@ -571,6 +593,9 @@ fn spawn_learner(
         .args(["--run-id", run_id]);
     if let Some(r) = &args.resume {
         learner_cmd.arg("--resume").arg(r);
+        if args.accept_env_change {
+            learner_cmd.arg("--accept-env-change");
+        }
     }
     let mut learner = learner_cmd
         .stdin(Stdio::null())

@@ -317,6 +317,9 @@ impl Env for Ant {
     fn control_dt(&self) -> Option<f64> {
         Some(CONTROL_DT as f64)
     }
+    fn physics(&self) -> Option<crate::physics::SimParams> {
+        Some(self.robot.sim())
+    }
 
     fn spec(&self) -> &EnvSpec {
         &self.spec

@@ -276,6 +276,9 @@ impl Env for HalfCheetah {
     fn control_dt(&self) -> Option<f64> {
         Some(CONTROL_DT as f64)
     }
+    fn physics(&self) -> Option<crate::physics::SimParams> {
+        Some(self.robot.sim())
+    }
 
     fn spec(&self) -> &EnvSpec {
         &self.spec

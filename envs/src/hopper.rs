@@ -245,6 +245,9 @@ impl Env for Hopper {
     fn control_dt(&self) -> Option<f64> {
         Some(CONTROL_DT as f64)
     }
+    fn physics(&self) -> Option<crate::physics::SimParams> {
+        Some(self.robot.sim())
+    }
 }
 
 #[cfg(test)]

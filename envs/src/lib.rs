@@ -130,6 +130,11 @@ pub trait Env: Send {
     fn control_dt(&self) -> Option<f64> {
         None
     }
+    /// The rapier settings this env integrates with, after its options (a robot on
+    /// [`physics`]); `None` for an env without them. Part of a run's [`EnvRecord`].
+    fn physics(&self) -> Option<physics::SimParams> {
+        None
+    }
     /// A picture the env draws itself, for an env with no [`Env::scene`] (a Gymnasium env made
     /// with `render_mode="rgb_array"`): `None` if it cannot draw, else the picture or why
     /// drawing failed.
@@ -318,11 +323,119 @@ pub fn spec(name: &str) -> Result<EnvSpec, EnvError> {
 /// A fingerprint of `options` (order-independent), so that a learner and its workers can check
 /// that they run the same env variant.
 pub fn options_fingerprint(options: &EnvOptions) -> u64 {
-    // `toml::Table` keeps keys sorted, so its text is canonical. FNV-1a, stable across builds.
-    let text = toml::to_string(options).unwrap_or_default();
-    text.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
-        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
-    })
+    // `toml::Table` keeps keys sorted, so its text is canonical.
+    let mut h = Fnv1a::new();
+    h.eat(toml::to_string(options).unwrap_or_default().as_bytes());
+    h.0
+}
+
+/// The 64-bit FNV-1a hash, stable across builds and platforms (std's hashers are not).
+struct Fnv1a(u64);
+
+impl Fnv1a {
+    fn new() -> Self {
+        Self(0xcbf2_9ce4_8422_2325)
+    }
+
+    fn eat(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0 ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+}
+
+/// What a run's env was, kept beside its config (`env.json` in the run directory): the name and
+/// options the run gives, the physics settings they resolve to in this build, and a fingerprint
+/// of a short fixed rollout. The settings show a changed default; the rollout shows any change
+/// of the dynamics between builds (a model, the integrator, a default), even where the
+/// settings read the same. A run resumed by a build whose record differs would mix two tasks.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct EnvRecord {
+    pub env: String,
+    pub options: EnvOptions,
+    /// [`Env::physics`]: `None` for an env without rapier settings.
+    pub physics: Option<physics::SimParams>,
+    /// [`rollout_fingerprint`], 16 hex digits.
+    pub rollout: String,
+}
+
+impl EnvRecord {
+    /// This build's record of env `name` with `options` (builds the env and steps it
+    /// [`ROLLOUT_STEPS`] times).
+    pub fn of(name: &str, options: &EnvOptions) -> Result<Self, EnvError> {
+        let mut env = make_with(name, options)?;
+        Ok(Self {
+            env: name.to_string(),
+            options: options.clone(),
+            physics: env.physics(),
+            rollout: format!("{:016x}", rollout_fingerprint(env.as_mut())),
+        })
+    }
+
+    /// What differs from `now`, one `field: then → now` per field (empty when nothing does).
+    pub fn differences(&self, now: &Self) -> Vec<String> {
+        let fields = |r: &Self| {
+            let mut f = std::collections::BTreeMap::new();
+            f.insert("env".to_string(), r.env.clone());
+            let options = toml::to_string(&r.options).unwrap_or_default();
+            let options = match options.trim() {
+                "" => "none".to_string(),
+                o => o.replace('\n', ", "),
+            };
+            f.insert("options".to_string(), options);
+            if let Some(Ok(t)) = r.physics.map(toml::Table::try_from) {
+                f.extend(
+                    t.iter()
+                        .map(|(k, x)| (format!("physics.{k}"), x.to_string())),
+                );
+            }
+            f.insert("rollout".to_string(), r.rollout.clone());
+            f
+        };
+        let (then, now) = (fields(self), fields(now));
+        let keys: std::collections::BTreeSet<&String> = then.keys().chain(now.keys()).collect();
+        let none = "none".to_string();
+        keys.into_iter()
+            .filter_map(|k| {
+                let (a, b) = (then.get(k).unwrap_or(&none), now.get(k).unwrap_or(&none));
+                (a != b).then(|| format!("{k}: {a} → {b}"))
+            })
+            .collect()
+    }
+}
+
+/// Steps in [`rollout_fingerprint`]: enough to leave the ground and touch it again on every
+/// robot, a few milliseconds of simulation.
+pub const ROLLOUT_STEPS: usize = 200;
+
+/// A fingerprint of `env`'s dynamics in this build: FNV-1a over the bits of every observation,
+/// reward and ending of [`ROLLOUT_STEPS`] steps from `reset(Some(0))` under fixed smooth
+/// actions (an episode that ends is reset with the next seed). Deterministic envs give the same
+/// value on every run of a build; a change of model, integrator or default changes it.
+pub fn rollout_fingerprint(env: &mut dyn Env) -> u64 {
+    let n = env.spec().act_dim;
+    let mut h = Fnv1a::new();
+    let eat_obs = |h: &mut Fnv1a, obs: &[f32]| {
+        for x in obs {
+            h.eat(&x.to_bits().to_le_bytes());
+        }
+    };
+    let mut seed = 0;
+    eat_obs(&mut h, &env.reset(Some(seed)));
+    for t in 0..ROLLOUT_STEPS {
+        let a: Vec<f32> = (0..n)
+            .map(|i| (0.37 * t as f32 + 1.1 * i as f32).sin())
+            .collect();
+        let s = env.step(&a);
+        eat_obs(&mut h, &s.obs);
+        h.eat(&s.reward.to_bits().to_le_bytes());
+        h.eat(&[s.terminated as u8, s.truncated as u8]);
+        if s.terminated || s.truncated {
+            seed += 1;
+            eat_obs(&mut h, &env.reset(Some(seed)));
+        }
+    }
+    h.0
 }
 
 fn canonical(name: &str) -> String {
@@ -410,6 +523,71 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The published FNV-1a 64 test vectors (the empty string, "a", "foobar").
+    #[test]
+    fn fnv1a_matches_its_published_vectors() {
+        let hash = |s: &str| {
+            let mut h = Fnv1a::new();
+            h.eat(s.as_bytes());
+            h.0
+        };
+        assert_eq!(hash(""), 0xcbf2_9ce4_8422_2325);
+        assert_eq!(hash("a"), 0xaf63_dc4c_8601_ec8c);
+        assert_eq!(hash("foobar"), 0x8594_4171_f739_67e8);
+    }
+
+    /// A run's env record: the same in two fresh builds of an env (and through its JSON); a
+    /// physics option changes the settings it shows and the rollout, and the differences name
+    /// both; an env whose dynamics change with nothing in its settings (the pendulum's gravity
+    /// here, standing for a changed model) changes the rollout alone.
+    #[test]
+    fn env_records_repeat_and_name_what_changed() {
+        for name in names() {
+            let a = EnvRecord::of(name, &EnvOptions::new()).unwrap();
+            assert_eq!(
+                a,
+                EnvRecord::of(name, &EnvOptions::new()).unwrap(),
+                "{name}"
+            );
+            let json = serde_json::to_string(&a).unwrap();
+            assert_eq!(
+                a,
+                serde_json::from_str::<EnvRecord>(&json).unwrap(),
+                "{name}"
+            );
+            assert!(a.differences(&a).is_empty());
+            assert_eq!(
+                a.physics.is_some(),
+                !["pendulum", "fpc-assembly"].contains(&name),
+                "{name}"
+            );
+        }
+        let hopper = EnvRecord::of("hopper", &EnvOptions::new()).unwrap();
+        let finer = EnvRecord::of("hopper", &table("substeps = 3")).unwrap();
+        assert_eq!(finer.physics.unwrap().substeps, 3);
+        assert_ne!(hopper.rollout, finer.rollout);
+        let d = hopper.differences(&finer);
+        assert_eq!(d.len(), 3, "{d:?}");
+        assert_eq!(d[0], "options: none → substeps = 3");
+        assert_eq!(d[1], "physics.substeps: 2 → 3");
+        assert!(d[2].starts_with("rollout: "), "{d:?}");
+        let earth = EnvRecord::of("pendulum", &EnvOptions::new()).unwrap();
+        let mut moon = EnvRecord::of("pendulum", &table("g = 1.62")).unwrap();
+        moon.options = earth.options.clone();
+        let d = earth.differences(&moon);
+        assert_eq!(d.len(), 1, "{d:?}");
+        assert!(d[0].starts_with("rollout: "), "{d:?}");
+        // A record from before a field existed reads as "none".
+        let bare = EnvRecord {
+            physics: None,
+            ..hopper.clone()
+        };
+        assert!(bare
+            .differences(&hopper)
+            .iter()
+            .any(|l| l == "physics.substeps: none → 2"));
     }
 
     fn table(text: &str) -> EnvOptions {

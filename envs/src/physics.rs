@@ -39,7 +39,7 @@ pub const FLOOR: Group = Group::GROUP_2;
 pub const GRAVITY_Z: f32 = -9.81;
 
 /// How a control step is integrated.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SimParams {
     /// Control period, s.
     pub control_dt: f32,
@@ -1036,6 +1036,11 @@ impl Robot {
             self.links.apply_joint_torques(&mut self.world, applied);
             self.world.step();
         }
+    }
+
+    /// The settings this robot integrates with.
+    pub fn sim(&self) -> SimParams {
+        self.sim
     }
 
     pub fn qpos(&self) -> Vec<f32> {

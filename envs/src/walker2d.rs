@@ -219,6 +219,9 @@ impl Env for Walker2d {
     fn control_dt(&self) -> Option<f64> {
         Some(CONTROL_DT as f64)
     }
+    fn physics(&self) -> Option<crate::physics::SimParams> {
+        Some(self.robot.sim())
+    }
 
     fn spec(&self) -> &EnvSpec {
         &self.spec

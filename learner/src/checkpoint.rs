@@ -12,6 +12,7 @@ use crate::replay::ReplayBuffer;
 use crate::rollout::{Pending, Rollout};
 use crate::selkd::{RoundStats, Selkd};
 use anyhow::{bail, Context, Result};
+use selkd_envs::EnvRecord;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::Path;
@@ -65,6 +66,64 @@ pub struct TrainingState {
     /// AVTD: the variant that acts (actor `selected_variant` of the stacked actors).
     #[serde(default)]
     pub selected_variant: usize,
+    /// The env the run trained on, stretch by stretch: one entry from its start, another for
+    /// each resume that accepted a changed env (`--accept-env-change`). (Absent in checkpoints
+    /// from before the records: the first resume records the env from then on.)
+    #[serde(default)]
+    pub env: Vec<EnvStretch>,
+}
+
+/// From which env step (all actors) a run trained on `record`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EnvStretch {
+    pub from_env_step: u64,
+    pub record: EnvRecord,
+}
+
+/// The env history a run resumed from `state` goes on with, given this build's record `now`
+/// of its env, and a line to say where that history gained an entry. A record that differs from
+/// the checkpoint's last is an error unless `accept_change`: a run trained on one physics and
+/// continued on another mixes two tasks in one curve.
+pub fn continue_env_history(
+    state: &TrainingState,
+    now: &EnvRecord,
+    accept_change: bool,
+) -> Result<(Vec<EnvStretch>, Option<String>)> {
+    let mut history = state.env.clone();
+    let stretch = EnvStretch {
+        from_env_step: state.inserted,
+        record: now.clone(),
+    };
+    let Some(last) = history.last() else {
+        history.push(stretch);
+        return Ok((
+            history,
+            Some(format!(
+                "the checkpoint records no env (it predates env records); this build's env is recorded from {} env steps on",
+                state.inserted
+            )),
+        ));
+    };
+    let changed = last.record.differences(now);
+    if changed.is_empty() {
+        return Ok((history, None));
+    }
+    let what = changed.join("; ");
+    if !accept_change {
+        bail!(
+            "this build's env `{}` is not the one the run trained on since {} env steps ({what}): resume it with the build that began it, start a new run directory, or pass --accept-env-change to continue on this env (recorded in the checkpoints)",
+            now.env,
+            last.from_env_step
+        );
+    }
+    history.push(stretch);
+    Ok((
+        history,
+        Some(format!(
+            "the env changed at {} env steps, accepted ({what})",
+            state.inserted
+        )),
+    ))
 }
 
 /// [`RoundStats`] in JSON, which has no NaN (`None` stands for it).

@@ -4,7 +4,7 @@
 use anyhow::{Context, Result};
 use clap::Parser;
 use selkd_learner::config::Config;
-use selkd_learner::service::{Learner, Outcome};
+use selkd_learner::service::{Learner, Outcome, Resume};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
@@ -30,6 +30,10 @@ struct Args {
     /// Continue from a checkpoint directory (e.g. RUN/checkpoints/final).
     #[arg(long)]
     resume: Option<PathBuf>,
+    /// With --resume: continue even though this build's env (its physics settings or dynamics)
+    /// differs from the one the run trained on; the change is recorded in the checkpoints.
+    #[arg(long, requires = "resume")]
+    accept_env_change: bool,
 }
 
 fn main() {
@@ -78,7 +82,11 @@ fn run(args: &Args, signal: &Arc<AtomicUsize>) -> Result<Outcome> {
             .context("installing signal handlers")?;
     }
     let _lock = lock_run_id(&args.run_id)?;
-    let mut learner = Learner::new(cfg, &args.run_dir, args.resume.as_deref())?;
+    let resume = args.resume.as_deref().map(|checkpoint| Resume {
+        checkpoint,
+        accept_env_change: args.accept_env_change,
+    });
+    let mut learner = Learner::new(cfg, &args.run_dir, resume)?;
     learner.run(&args.run_id, stop)
 }
 

@@ -1852,6 +1852,7 @@ mod tests {
             ranking: crate::ranking::Ranking::new(2, 1),
             wall_seconds: 0.0,
             selected_variant: 0,
+            env: vec![],
         };
         checkpoint::save(&dir, &mut a, Some(&mut rb), &state).unwrap();
         let mut b = Selkd::new(&cfg, 3, 2, Device::Cpu, 99);

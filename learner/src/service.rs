@@ -73,6 +73,17 @@ pub struct Learner {
     stats: Stats,
     /// The run directory, metrics file, TensorBoard events, wall clock and checkpoint schedule.
     out: Outputs,
+    /// The env the run trained on, stretch by stretch (into every checkpoint).
+    env: Vec<checkpoint::EnvStretch>,
+}
+
+/// Where a resumed run continues from.
+pub struct Resume<'a> {
+    /// A complete checkpoint directory (`RUN/checkpoints/NAME`).
+    pub checkpoint: &'a Path,
+    /// Continue even if this build's env differs from the one the run trained on
+    /// ([`checkpoint::continue_env_history`]).
+    pub accept_env_change: bool,
 }
 
 /// What the run has done so far: the learner's counters and the latest round's numbers. All of
@@ -306,8 +317,9 @@ impl Pass {
 }
 
 impl Learner {
-    pub fn new(cfg: Config, run_dir: &Path, resume: Option<&Path>) -> Result<Self> {
+    pub fn new(cfg: Config, run_dir: &Path, resume: Option<Resume>) -> Result<Self> {
         let spec = cfg.env_spec()?;
+        let env_now = selkd_envs::EnvRecord::of(&cfg.run.env, &cfg.env_options)?;
         let device = parse_device(&cfg.run.device)?;
         crate::threads::set(cfg.run.threads);
         crate::matmul::set(cfg.run.cpu_gemm);
@@ -322,19 +334,33 @@ impl Learner {
         crate::config::create_run_dir(run_dir, cfg.run.dir_mode)
             .and_then(|()| std::fs::create_dir_all(run_dir.join("checkpoints")))
             .with_context(|| format!("creating {}", run_dir.display()))?;
-        let resumed = match resume {
-            Some(dir) => {
+        let (resumed, env) = match resume {
+            Some(Resume {
+                checkpoint: dir,
+                accept_env_change,
+            }) => {
                 let state = checkpoint::load(dir, &mut selkd, &mut replay)
                     .with_context(|| format!("resuming from {}", dir.display()))?;
+                let (env, note) =
+                    checkpoint::continue_env_history(&state, &env_now, accept_env_change)?;
+                if let Some(note) = note {
+                    tracing::warn!("{note}");
+                }
                 tracing::info!(
                     env_steps = state.inserted,
                     version = state.weights_version,
                     "resumed from {}",
                     dir.display()
                 );
-                Some(state)
+                (Some(state), env)
             }
-            None => None,
+            None => (
+                None,
+                vec![checkpoint::EnvStretch {
+                    from_env_step: 0,
+                    record: env_now,
+                }],
+            ),
         };
         let resumed = resumed.as_ref();
         let epochs = Epochs::from_resumed(resumed, k);
@@ -361,6 +387,7 @@ impl Learner {
             selkd,
             replay,
             cfg,
+            env,
         })
     }
 
@@ -989,6 +1016,7 @@ impl Learner {
             ranking: self.ranking.clone(),
             wall_seconds: self.out.wall(),
             selected_variant: self.selkd.selection().map_or(0, |(v, _)| v),
+            env: self.env.clone(),
         };
         let replay = self.cfg.run.checkpoint_replay.then_some(&mut self.replay);
         checkpoint::save(&dir, &mut self.selkd, replay, &state)?;

@@ -184,6 +184,8 @@ fn eval_reports_every_actor_on_the_runs_env_and_matches_an_independent_evaluatio
         "--json",
     ]);
     assert_eq!(from_ckpt["actors"], all["actors"]);
+    // The env is the one the run trained on: nothing to report.
+    assert_eq!(all["env_changes_since_training"], serde_json::json!([]));
 
     // --env-options replaces the run's g for the replay (and only for it): the same actor on the
     // same seeds, played here at g = 9, gives eval's numbers; the run's own options are the
@@ -199,6 +201,13 @@ fn eval_reports_every_actor_on_the_runs_env_and_matches_an_independent_evaluatio
         "--json",
     ]);
     assert_eq!(light["env_options"], serde_json::json!({"g": 9.0}));
+    // ... and says how that env differs from the one the policy trained on.
+    let changes = light["env_changes_since_training"].as_array().unwrap();
+    assert_eq!(changes[0], "options: g = 12.0 → g = 9.0", "{changes:?}");
+    assert!(
+        changes[1].as_str().unwrap().starts_with("rollout: "),
+        "{changes:?}"
+    );
     let opts9: selkd_envs::EnvOptions = serde_json::from_str(r#"{"g": 9.0}"#).unwrap();
     let mut env9 = selkd_envs::make_with("pendulum", &opts9).unwrap();
     for (e, seed) in light["seeds"].as_array().unwrap().iter().enumerate() {
@@ -221,6 +230,11 @@ fn eval_reports_every_actor_on_the_runs_env_and_matches_an_independent_evaluatio
     assert_ne!(light["actors"][0]["returns"], actors[0]["returns"]);
     let out = eval(&[run_arg, "--episodes", "1", "--env-options", r#"{"g": 9.0}"#]);
     assert!(out.status.success());
+    let note = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        note.contains("not the one the policy trained on (options: g = 12.0 → g = 9.0; rollout: "),
+        "{note}"
+    );
     let header = String::from_utf8_lossy(&out.stdout);
     assert!(header.contains("env pendulum (g = 9.0)"), "{header}");
 

@@ -4,7 +4,8 @@
 //! complete checkpoint, a missing replay buffer is said on the terminal; a state with non-finite
 //! values is never checkpointed; a run directory without a checkpoint is never stuck; SIGTERM to
 //! the learner alone makes selkd exit 143; an async run does not wait for a worker that keeps
-//! dying; half-made iceoryx2 node entries are removed at start-up.
+//! dying; half-made iceoryx2 node entries are removed at start-up; a run is not resumed on
+//! another env (physics) unless that is accepted.
 
 mod common;
 use common::*;
@@ -55,6 +56,108 @@ fn bad_inputs_are_one_line_errors_before_anything_starts() {
         assert!(!dir.exists(), "{args:?}: a run directory was made");
     }
     let _ = std::fs::remove_dir_all(&root);
+}
+
+/// A run's checkpoints record the env it trained on (`env` in state.json: this build's physics
+/// settings and a fingerprint of its dynamics). A resume whose env differs (here the recorded
+/// fingerprint is set to another build's; a changed `[env_options]` likewise) is refused in one
+/// line that names the difference, before any process starts; `--accept-env-change` continues
+/// and records the new stretch; a checkpoint from before the records resumes and records the
+/// env from there on.
+#[test]
+fn a_run_resumed_on_another_env_is_refused_in_one_line_unless_accepted() {
+    let dir = temp_dir("env-change");
+    let sets = |budget: u64, extra: &[&str]| {
+        let budget = format!("run.total_env_steps={budget}");
+        small_run(&[&["algo.actors=2", budget.as_str()], extra].concat())
+    };
+    assert_success(&run(train(&dir, &sets(800, &[]))), &dir);
+    let state_path = dir.join("checkpoints/final/state.json");
+    let read = || -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(&state_path).unwrap()).unwrap()
+    };
+    let env = read()["env"].clone();
+    assert_eq!(env.as_array().unwrap().len(), 1, "{env}");
+    assert_eq!(env[0]["from_env_step"], 0);
+    assert_eq!(env[0]["record"]["env"], "pendulum");
+    assert_eq!(env[0]["record"]["physics"], serde_json::Value::Null);
+    let ours = env[0]["record"]["rollout"].as_str().unwrap().to_string();
+    assert_eq!(ours.len(), 16, "{ours}");
+    // Another build's dynamics. (Edited as text: the generator's u128 state does not survive a
+    // round trip through `serde_json::Value`.)
+    let text = std::fs::read_to_string(&state_path).unwrap();
+    assert_eq!(text.matches(&ours).count(), 1);
+    std::fs::write(&state_path, text.replace(&ours, "0123456789abcdef")).unwrap();
+    let resume = |budget: u64, extra: &[&str]| {
+        let mut c = train(&dir, &sets(budget, &[]));
+        c.arg("--resume").arg(&dir).args(extra);
+        run(c)
+    };
+    let out = resume(1200, &[]);
+    let err = stderr_of(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains(&format!("rollout: 0123456789abcdef → {ours}"))
+            && err.contains("since 0 env steps")
+            && err.contains("--accept-env-change"),
+        "{err}"
+    );
+    assert!(!dir.join("checkpoints/step-1200").exists() && read()["inserted"] == 800);
+    // A changed option is a changed env too.
+    let mut c = train(&dir, &sets(1200, &["env_options.g=1.62"]));
+    c.arg("--resume").arg(&dir);
+    let err = stderr_of(&run(c));
+    assert!(err.contains("options: none → g = 1.62"), "{err}");
+    // Accepted: the run goes on, and its history has two stretches.
+    let out = resume(1200, &["--accept-env-change"]);
+    assert_success(&out, &dir);
+    assert!(stderr_of(&out).contains("the env changed at 800 env steps, accepted"));
+    let env = read()["env"].clone();
+    assert_eq!(read()["inserted"], 1200);
+    assert_eq!(env.as_array().unwrap().len(), 2, "{env}");
+    assert_eq!(env[0]["record"]["rollout"], "0123456789abcdef");
+    assert_eq!(env[1]["from_env_step"], 800);
+    assert_eq!(env[1]["record"]["rollout"], ours.as_str());
+    // From before the records: resumed, recorded from its env steps on.
+    let text = std::fs::read_to_string(&state_path).unwrap();
+    let start = ["\"env\":[", "\"env\": ["]
+        .iter()
+        .find_map(|k| text.find(k))
+        .unwrap();
+    let mut depth = 0;
+    let end = start
+        + text[start..]
+            .char_indices()
+            .find(|&(_, c)| {
+                depth += match c {
+                    '[' | '{' => 1,
+                    ']' | '}' => -1,
+                    _ => 0,
+                };
+                c == ']' && depth == 0
+            })
+            .unwrap()
+            .0;
+    // The field and one comma beside it.
+    let (before, after) = (text[..start].trim_end(), text[end + 1..].trim_start());
+    let cut = match after.strip_prefix(',') {
+        Some(rest) => format!("{before}{rest}"),
+        None => format!("{}{after}", before.strip_suffix(',').unwrap()),
+    };
+    std::fs::write(&state_path, cut).unwrap();
+    assert!(read().get("env").is_none());
+    let out = resume(1600, &[]);
+    assert_success(&out, &dir);
+    assert!(
+        stderr_of(&out).contains("predates env records"),
+        "{}",
+        stderr_of(&out)
+    );
+    let env = read()["env"].clone();
+    assert_eq!(env.as_array().unwrap().len(), 1, "{env}");
+    assert_eq!(env[0]["from_env_step"], 1200);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A run with three checkpoints, each then damaged another way.
