@@ -404,14 +404,16 @@ impl EnvRecord {
     }
 }
 
-/// Steps in [`rollout_fingerprint`]: enough to leave the ground and touch it again on every
-/// robot, a few milliseconds of simulation.
+/// Steps in [`rollout_fingerprint`]: 1–3 s of simulated time on the robots, through contacts,
+/// falls and resets; well under a second to compute.
 pub const ROLLOUT_STEPS: usize = 200;
 
 /// A fingerprint of `env`'s dynamics in this build: FNV-1a over the bits of every observation,
-/// reward and ending of [`ROLLOUT_STEPS`] steps from `reset(Some(0))` under fixed smooth
-/// actions (an episode that ends is reset with the next seed). Deterministic envs give the same
-/// value on every run of a build; a change of model, integrator or default changes it.
+/// reward and ending of [`ROLLOUT_STEPS`] steps from `reset(Some(0))` under fixed actions (an
+/// episode that ends is reset with the next seed). Deterministic envs give the same value on
+/// every run of a build; a change of model, integrator or default changes it. (So might a
+/// machine whose maths library rounds a sine differently in its last bit: the envs call the
+/// system's.)
 pub fn rollout_fingerprint(env: &mut dyn Env) -> u64 {
     let n = env.spec().act_dim;
     let mut h = Fnv1a::new();
@@ -423,8 +425,9 @@ pub fn rollout_fingerprint(env: &mut dyn Env) -> u64 {
     let mut seed = 0;
     eat_obs(&mut h, &env.reset(Some(seed)));
     for t in 0..ROLLOUT_STEPS {
+        // Exact in f32 and free of libm, whose last bits may differ between machines.
         let a: Vec<f32> = (0..n)
-            .map(|i| (0.37 * t as f32 + 1.1 * i as f32).sin())
+            .map(|i| ((7 * t + 3 * i) % 21) as f32 / 10.0 - 1.0)
             .collect();
         let s = env.step(&a);
         eat_obs(&mut h, &s.obs);

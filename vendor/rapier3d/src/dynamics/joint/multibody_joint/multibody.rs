@@ -871,11 +871,25 @@ impl Multibody {
         }
 
         let mut curr_assembly_id = 0;
+        // SELKD patch (see `vendor/README.md`): the degrees of freedom a link's Jacobian can
+        // depend on, its own and its ancestors' (branch-induced sparsity); outside them its
+        // columns are exactly zero.
+        let mut link_dofs: Vec<usize> = Vec::with_capacity(self.ndofs);
 
         for i in 0..self.links.len() {
             let link = &self.links[i];
             let rb = &bodies[link.rigid_body];
             let rb_mass = rb.mprops.effective_mass();
+            link_dofs.clear();
+            let mut a = i;
+            loop {
+                let l = &self.links[a];
+                link_dofs.extend(l.assembly_id..l.assembly_id + l.joint.ndofs());
+                if a == 0 {
+                    break;
+                }
+                a = l.parent_internal_id;
+            }
             let rb_inertia = rb.mprops.effective_angular_inertia().into_matrix();
             let body_jacobian = &self.body_jacobians[i];
 
@@ -916,10 +930,22 @@ impl Multibody {
             let rb_mass_matrix_wo_gyro = concat_rb_mass_matrix(rb_mass, rb_inertia.into());
             #[allow(clippy::useless_conversion)] // Needed in 3D, no-op in 2D
             let rb_mass_matrix = concat_rb_mass_matrix(rb_mass, augmented_inertia.into());
-            self.augmented_mass
-                .quadform(1.0, &rb_mass_matrix_wo_gyro, body_jacobian, 1.0);
-            self.acc_augmented_mass
-                .quadform(1.0, &rb_mass_matrix, body_jacobian, 1.0);
+            // SELKD patch: `quadform(1.0, m, J, 1.0)` on the link's own degrees of freedom
+            // only, with nalgebra's own products in the same order, so every entry comes out
+            // bit for bit as the dense form's (whose other terms are zeros); 4–6× fewer
+            // operations for the humanoid.
+            sparse_quadform(
+                &mut self.augmented_mass,
+                &rb_mass_matrix_wo_gyro,
+                body_jacobian,
+                &link_dofs,
+            );
+            sparse_quadform(
+                &mut self.acc_augmented_mass,
+                &rb_mass_matrix,
+                body_jacobian,
+                &link_dofs,
+            );
 
             /*
              *
@@ -1046,8 +1072,15 @@ impl Multibody {
                 i_coriolis_dt_w.gemm(dt, &mat_to_na(rb_inertia), coriolis_w, 0.0);
             }
 
-            self.acc_augmented_mass
-                .gemm_tr(1.0, rb_j, &self.i_coriolis_dt, 1.0);
+            // SELKD patch: `gemm_tr(1.0, rb_j, i_coriolis_dt, 1.0)` on the link's own degrees
+            // of freedom (both factors' other columns are zeros), entry by entry as nalgebra's.
+            for &j in &link_dofs {
+                let c = self.i_coriolis_dt.column(j);
+                for &r in &link_dofs {
+                    let v = &mut self.acc_augmented_mass[(r, j)];
+                    *v = rb_j.column(r).dot(&c) + *v;
+                }
+            }
         }
 
         /*
@@ -1878,6 +1911,26 @@ impl IndexSequence {
             f(&mut mat.rows_mut(0, effective_dim));
         }
         self.inv_rearrange_rows(mat);
+    }
+}
+
+/// SELKD patch (see `vendor/README.md`): `out.quadform(1.0, mid, jac, 1.0)` restricted to the
+/// columns and rows `dofs` of `jac`, outside which `jac` is zero. Each entry is computed as
+/// nalgebra's `quadform_with_workspace` computes it (`work = mid · jac[:, j]` by `gemv`, then
+/// `out[r, j] = 1 · jac[:, r] · work + 1 · out[r, j]`), so it is the same number bit for bit.
+fn sparse_quadform(
+    out: &mut na::DMatrix<Real>,
+    mid: &na::SMatrix<Real, SPATIAL_DIM, SPATIAL_DIM>,
+    jac: &Jacobian<Real>,
+    dofs: &[usize],
+) {
+    let mut work = na::SVector::<Real, SPATIAL_DIM>::zeros();
+    for &j in dofs {
+        work.gemv(1.0, mid, &jac.column(j), 0.0);
+        for &r in dofs {
+            let v = &mut out[(r, j)];
+            *v = 1.0 * jac.column(r).dot(&work) + 1.0 * *v;
+        }
     }
 }
 
