@@ -1339,6 +1339,13 @@ mod tests {
         e.evaluation(0, 3, f64::NAN);
         e.evaluation(1, 3, f64::NAN);
         assert_eq!(e.next_to_log(1000), Some((3, 3000)));
+        // ... also when a later epoch's end is on record: that one is not its end.
+        e.eval_epoch = 5;
+        e.epoch_ends = VecDeque::from([(5, 5007)]);
+        e.evaluation(0, 5, f64::NAN);
+        e.evaluation(1, 5, f64::NAN);
+        assert_eq!(e.next_to_log(1000), Some((4, 4000)));
+        assert_eq!(e.next_to_log(1000), Some((5, 5007)));
     }
 
     #[test]
