@@ -355,8 +355,9 @@ pub struct EnvRecord {
     pub options: EnvOptions,
     /// [`Env::physics`]: `None` for an env without rapier settings.
     pub physics: Option<physics::SimParams>,
-    /// [`rollout_fingerprint`], 16 hex digits.
-    pub rollout: String,
+    /// [`rollout_fingerprint`], 16 hex digits; `None` for an env whose seeded rollout does not
+    /// repeat (a Gymnasium env that ignores its seed), which then has nothing to compare.
+    pub rollout: Option<String>,
 }
 
 impl EnvRecord {
@@ -364,12 +365,18 @@ impl EnvRecord {
     /// [`ROLLOUT_STEPS`] times).
     pub fn of(name: &str, options: &EnvOptions) -> Result<Self, EnvError> {
         let mut env = make_with(name, options)?;
-        Ok(Self {
+        Ok(Self::from_env(name, options, env.as_mut()))
+    }
+
+    /// The record of `env`, made as `name` with `options`.
+    fn from_env(name: &str, options: &EnvOptions, env: &mut dyn Env) -> Self {
+        let (first, second) = (rollout_fingerprint(env), rollout_fingerprint(env));
+        Self {
             env: name.to_string(),
             options: options.clone(),
             physics: env.physics(),
-            rollout: format!("{:016x}", rollout_fingerprint(env.as_mut())),
-        })
+            rollout: (first == second).then(|| format!("{first:016x}")),
+        }
     }
 
     /// What differs from `now`, one `field: then → now` per field (empty when nothing does).
@@ -389,18 +396,29 @@ impl EnvRecord {
                         .map(|(k, x)| (format!("physics.{k}"), x.to_string())),
                 );
             }
-            f.insert("rollout".to_string(), r.rollout.clone());
             f
         };
-        let (then, now) = (fields(self), fields(now));
-        let keys: std::collections::BTreeSet<&String> = then.keys().chain(now.keys()).collect();
+        let (a_fields, b_fields) = (fields(self), fields(now));
+        let keys: std::collections::BTreeSet<&String> =
+            a_fields.keys().chain(b_fields.keys()).collect();
         let none = "none".to_string();
-        keys.into_iter()
+        let mut changed: Vec<String> = keys
+            .into_iter()
             .filter_map(|k| {
-                let (a, b) = (then.get(k).unwrap_or(&none), now.get(k).unwrap_or(&none));
+                let (a, b) = (
+                    a_fields.get(k).unwrap_or(&none),
+                    b_fields.get(k).unwrap_or(&none),
+                );
                 (a != b).then(|| format!("{k}: {a} → {b}"))
             })
-            .collect()
+            .collect();
+        // A rollout that does not repeat has nothing to compare.
+        if let (Some(a), Some(b)) = (&self.rollout, &now.rollout) {
+            if a != b {
+                changed.push(format!("rollout: {a} → {b}"));
+            }
+        }
+        changed
     }
 }
 
@@ -582,6 +600,33 @@ mod tests {
         let d = earth.differences(&moon);
         assert_eq!(d.len(), 1, "{d:?}");
         assert!(d[0].starts_with("rollout: "), "{d:?}");
+        // An env whose seeded rollout does not repeat records none, and is compared without it.
+        struct Unseeded(u64, EnvSpec);
+        impl Env for Unseeded {
+            fn spec(&self) -> &EnvSpec {
+                &self.1
+            }
+            fn reset(&mut self, _seed: Option<u64>) -> Vec<f32> {
+                self.0 += 1;
+                vec![self.0 as f32]
+            }
+            fn step(&mut self, _action: &[f32]) -> Step {
+                Step {
+                    obs: vec![0.0],
+                    reward: 0.0,
+                    terminated: false,
+                    truncated: false,
+                    success: None,
+                }
+            }
+        }
+        let spec = spec("pendulum").unwrap();
+        let unrepeatable =
+            EnvRecord::from_env("pendulum", &EnvOptions::new(), &mut Unseeded(0, spec));
+        assert_eq!(unrepeatable.rollout, None);
+        assert!(earth.differences(&unrepeatable).is_empty());
+        assert!(earth.differences(&unrepeatable).is_empty());
+        assert!(unrepeatable.differences(&moon).is_empty());
         // A record from before a field existed reads as "none".
         let bare = EnvRecord {
             physics: None,
