@@ -344,7 +344,7 @@ impl Fnv1a {
     }
 }
 
-/// What a run's env was, kept beside its config (`env.json` in the run directory): the name and
+/// What a run's env was, kept in each checkpoint (`env` in its `state.json`): the name and
 /// options the run gives, the physics settings they resolve to in this build, and a fingerprint
 /// of a short fixed rollout. The settings show a changed default; the rollout shows any change
 /// of the dynamics between builds (a model, the integrator, a default), even where the
@@ -390,11 +390,8 @@ impl EnvRecord {
                 o => o.replace('\n', ", "),
             };
             f.insert("options".to_string(), options);
-            if let Some(Ok(t)) = r.physics.map(toml::Table::try_from) {
-                f.extend(
-                    t.iter()
-                        .map(|(k, x)| (format!("physics.{k}"), x.to_string())),
-                );
+            if let Some(p) = r.physics {
+                f.extend(p.fields().map(|(k, x)| (format!("physics.{k}"), x)));
             }
             f
         };
@@ -594,6 +591,11 @@ mod tests {
         assert_eq!(d[0], "options: none → substeps = 3");
         assert_eq!(d[1], "physics.substeps: 2 → 3");
         assert!(d[2].starts_with("rollout: "), "{d:?}");
+        let near = EnvRecord::of("hopper", &table("prediction_distance = 0.03")).unwrap();
+        assert_eq!(
+            hopper.differences(&near)[1],
+            "physics.prediction_distance: 0.02 → 0.03"
+        );
         let earth = EnvRecord::of("pendulum", &EnvOptions::new()).unwrap();
         let mut moon = EnvRecord::of("pendulum", &table("g = 1.62")).unwrap();
         moon.options = earth.options.clone();

@@ -70,6 +70,25 @@ pub struct SimParams {
 }
 
 impl SimParams {
+    /// Each setting by name, as it reads (the shortest decimal that is the same `f32`).
+    pub fn fields(&self) -> [(&'static str, String); 5] {
+        // Destructured, so that a new setting cannot be left out of the records.
+        let SimParams {
+            control_dt,
+            substeps,
+            solver_iterations,
+            prediction_distance,
+            limit_frequency,
+        } = *self;
+        [
+            ("control_dt", control_dt.to_string()),
+            ("substeps", substeps.to_string()),
+            ("solver_iterations", solver_iterations.to_string()),
+            ("prediction_distance", prediction_distance.to_string()),
+            ("limit_frequency", limit_frequency.to_string()),
+        ]
+    }
+
     /// Whether soft limits of [`Self::limit_frequency`] are stable at this step: their damping is
     /// explicit, so it needs `2ζωh ≤ 1` (ω = 2π·frequency, ζ = 1, h the rapier step), MuJoCo's
     /// rule for its `solref` (a time constant of at least two steps) in other words. Hard limits
