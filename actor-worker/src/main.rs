@@ -82,7 +82,7 @@ fn run(args: &Args) -> Result<()> {
         })?;
     let env = selkd_envs::make_with(&args.env, &env_options)?;
     let spec = env.spec().clone();
-    let fingerprint = selkd_envs::options_fingerprint(&env_options);
+    let fingerprint = selkd_envs::variant_fingerprint(&env_options, env.physics());
     let ours = Handshake::ours(spec.id, fingerprint, spec.obs_dim, spec.act_dim);
     selkd_protocol::stale::clean_up();
     // Named after the run: the learner looks for it to tell a gone worker from a quiet one.

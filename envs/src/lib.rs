@@ -282,7 +282,7 @@ pub fn register_family(prefix: &'static str, make: ExternalConstructor) {
 /// let step = env.step(&[-1.0]);
 /// assert_eq!(obs.len(), step.obs.len());
 /// // A learner and its workers compare this to check that they run the same variant.
-/// let _fingerprint = selkd_envs::options_fingerprint(&options);
+/// let _fingerprint = selkd_envs::variant_fingerprint(&options, env.physics());
 /// // Unknown keys are refused, naming them.
 /// let bad: selkd_envs::EnvOptions = toml::from_str("gravity = 1.62")?;
 /// assert!(selkd_envs::make_with("pendulum", &bad).is_err());
@@ -320,12 +320,17 @@ pub fn spec(name: &str) -> Result<EnvSpec, EnvError> {
     make(name).map(|e| e.spec().clone())
 }
 
-/// A fingerprint of `options` (order-independent), so that a learner and its workers can check
-/// that they run the same env variant.
-pub fn options_fingerprint(options: &EnvOptions) -> u64 {
+/// A fingerprint of an env variant: its `options` (order-independent) and the `physics`
+/// settings they resolve to in this build ([`Env::physics`]), so that a learner and its workers
+/// can check that they run the same variant: a worker of another build whose physics defaults
+/// differ is told apart as one with other options is.
+pub fn variant_fingerprint(options: &EnvOptions, physics: Option<physics::SimParams>) -> u64 {
     // `toml::Table` keeps keys sorted, so its text is canonical.
     let mut h = Fnv1a::new();
     h.eat(toml::to_string(options).unwrap_or_default().as_bytes());
+    for (k, v) in physics.iter().flat_map(|p| p.fields()) {
+        h.eat(format!("\n{k}={v}").as_bytes());
+    }
     h.0
 }
 
@@ -760,12 +765,31 @@ mod tests {
         assert!(e.contains("slot_widht_mm"), "{e}");
         assert!(make_with("fpc-assembly", &table("lateral_tol_mm = 0.2")).is_ok());
         assert_eq!(
-            options_fingerprint(&table("a = 1\nb = 2")),
-            options_fingerprint(&table("b = 2\na = 1"))
+            variant_fingerprint(&table("a = 1\nb = 2"), None),
+            variant_fingerprint(&table("b = 2\na = 1"), None)
         );
         assert_ne!(
-            options_fingerprint(&table("g = 10.0")),
-            options_fingerprint(&EnvOptions::new())
+            variant_fingerprint(&table("g = 10.0"), None),
+            variant_fingerprint(&EnvOptions::new(), None)
+        );
+        // The same options on another build's physics defaults are another variant.
+        let hopper = make("hopper").unwrap().physics();
+        let other = hopper.map(|p| physics::SimParams {
+            substeps: p.substeps + 1,
+            ..p
+        });
+        let none = EnvOptions::new();
+        assert_eq!(
+            variant_fingerprint(&none, hopper),
+            variant_fingerprint(&none, make("hopper").unwrap().physics())
+        );
+        assert_ne!(
+            variant_fingerprint(&none, hopper),
+            variant_fingerprint(&none, other)
+        );
+        assert_ne!(
+            variant_fingerprint(&none, hopper),
+            variant_fingerprint(&none, None)
         );
     }
 }

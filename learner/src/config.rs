@@ -1150,11 +1150,6 @@ impl Config {
     pub fn env_spec(&self) -> Result<selkd_envs::EnvSpec, selkd_envs::EnvError> {
         selkd_envs::make_with(&self.run.env, &self.env_options).map(|e| e.spec().clone())
     }
-
-    /// The fingerprint of `[env_options]` that learner and workers compare in the handshake.
-    pub fn env_options_fingerprint(&self) -> u64 {
-        selkd_envs::options_fingerprint(&self.env_options)
-    }
 }
 
 /// Most evaluation episodes per actor per epoch (`eval.episodes`).

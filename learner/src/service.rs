@@ -767,12 +767,14 @@ impl Learner {
         Ok(())
     }
 
-    /// The learner's side of the handshake, announced in every [`Control`].
+    /// The learner's side of the handshake, announced in every [`Control`]: the env variant is
+    /// this build's, the one the run trains on from here.
     fn handshake(&self) -> Handshake {
         let spec = &self.spec;
+        let now = &self.env.last().expect("a run has its env on record").record;
         Handshake::ours(
             spec.id,
-            self.cfg.env_options_fingerprint(),
+            selkd_envs::variant_fingerprint(&now.options, now.physics),
             spec.obs_dim,
             spec.act_dim,
         )

@@ -221,7 +221,7 @@ pub struct Report {
     pub incarnation: u64,
     pub protocol_version: u32,
     pub env: Name,
-    /// Fingerprint of the env's options (`selkd_envs::options_fingerprint`).
+    /// Fingerprint of the env's options and physics (`selkd_envs::variant_fingerprint`).
     pub env_options: u64,
     pub obs_dim: u32,
     pub act_dim: u32,
@@ -244,7 +244,7 @@ pub struct Control {
     pub protocol_version: u32,
     pub actors: u32,
     pub env: Name,
-    /// Fingerprint of the env's options (`selkd_envs::options_fingerprint`).
+    /// Fingerprint of the env's options and physics (`selkd_envs::variant_fingerprint`).
     pub env_options: u64,
     pub obs_dim: u32,
     pub act_dim: u32,
@@ -335,7 +335,7 @@ pub fn max_ports(actors: usize) -> usize {
 pub struct Handshake {
     pub protocol_version: u32,
     pub env: Name,
-    /// Fingerprint of the env's options (`selkd_envs::options_fingerprint`).
+    /// Fingerprint of the env's options and physics (`selkd_envs::variant_fingerprint`).
     pub env_options: u64,
     pub obs_dim: u32,
     pub act_dim: u32,
@@ -452,8 +452,9 @@ pub enum ProtocolError {
         worker: Box<Handshake>,
     },
     #[error(
-        "this worker runs env `{}` with other options than the run (fingerprint {:x}, the run's \
-         {:x}): start it with the run's [env_options] as --env-options (`selkd train` does this)",
+        "this worker runs env `{}` with other options or physics settings than the run \
+         (fingerprint {:x}, the run's {:x}): start it with the run's [env_options] as \
+         --env-options and from the same selkd build (`selkd train` does both)",
         worker.env.as_str(), worker.env_options, learner.env_options
     )]
     OptionsMismatch {

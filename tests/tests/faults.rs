@@ -246,7 +246,10 @@ fn a_worker_that_does_not_fit_the_run_is_refused_with_a_clear_error() {
     );
     let (code, err) = other_options;
     assert_eq!(code, Some(2), "{err}");
-    assert!(err.contains("other options than the run"), "{err}");
+    assert!(
+        err.contains("other options or physics settings than the run"),
+        "{err}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
