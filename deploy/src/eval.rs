@@ -154,7 +154,7 @@ fn run_inner(args: EvalArgs) -> Result<()> {
             options_text(&cfg.env_options)
         )
     })?;
-    let env_changes = env_changes_since_training(&checkpoint, &cfg);
+    let env_changes = env_changes_since_training(&checkpoint, &cfg, env.as_mut());
     if let Some(changes) = env_changes.as_ref().filter(|c| !c.is_empty()) {
         eprintln!(
             "selkd eval: note: this env is not the one the policy trained on ({})",
@@ -201,12 +201,17 @@ fn run_inner(args: EvalArgs) -> Result<()> {
     Ok(())
 }
 
-/// How the env evaluated here (this build's, with any `--env-options`) differs from the one
-/// the checkpoint last trained on: `None` for a checkpoint from before env records.
-fn env_changes_since_training(checkpoint: &Path, cfg: &Config) -> Option<Vec<String>> {
+/// How `env`, evaluated here (this build's, with any `--env-options`), differs from the one the
+/// checkpoint last trained on: `None` for a checkpoint from before env records. (Every episode
+/// evaluated after this starts from a seeded reset, which the record's rollouts do not touch.)
+fn env_changes_since_training(
+    checkpoint: &Path,
+    cfg: &Config,
+    env: &mut dyn selkd_envs::Env,
+) -> Option<Vec<String>> {
     let state = selkd_learner::checkpoint::check_complete(checkpoint).ok()?;
     let trained = &state.env.last()?.record;
-    let now = selkd_envs::EnvRecord::of(&cfg.run.env, &cfg.env_options).ok()?;
+    let now = selkd_envs::EnvRecord::of_env(&cfg.run.env, &cfg.env_options, env);
     Some(trained.differences(&now))
 }
 

@@ -370,11 +370,12 @@ impl EnvRecord {
     /// [`ROLLOUT_STEPS`] times).
     pub fn of(name: &str, options: &EnvOptions) -> Result<Self, EnvError> {
         let mut env = make_with(name, options)?;
-        Ok(Self::from_env(name, options, env.as_mut()))
+        Ok(Self::of_env(name, options, env.as_mut()))
     }
 
-    /// The record of `env`, made as `name` with `options`.
-    fn from_env(name: &str, options: &EnvOptions, env: &mut dyn Env) -> Self {
+    /// The record of `env`, made as `name` with `options` (for a caller that keeps the env: the
+    /// rollouts leave it mid-episode, and the next `reset` with a seed starts afresh).
+    pub fn of_env(name: &str, options: &EnvOptions, env: &mut dyn Env) -> Self {
         let (first, second) = (rollout_fingerprint(env), rollout_fingerprint(env));
         Self {
             env: name.to_string(),
@@ -629,7 +630,7 @@ mod tests {
         }
         let spec = spec("pendulum").unwrap();
         let unrepeatable =
-            EnvRecord::from_env("pendulum", &EnvOptions::new(), &mut Unseeded(0, spec));
+            EnvRecord::of_env("pendulum", &EnvOptions::new(), &mut Unseeded(0, spec));
         assert_eq!(unrepeatable.rollout, None);
         assert!(earth.differences(&unrepeatable).is_empty());
         assert!(earth.differences(&unrepeatable).is_empty());

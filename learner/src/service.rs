@@ -55,8 +55,10 @@ pub fn parse_device(s: &str) -> Result<Device> {
 /// the rate limiter), then the rest in named parts, each holding what one concern needs.
 pub struct Learner {
     cfg: Config,
-    /// The env's spec, made once: a `gymnasium:` env is a `gymnasium.make` in Python.
-    spec: selkd_envs::EnvSpec,
+    /// The learner's side of the handshake, announced in every [`Control`]: the env's name and
+    /// sizes, and the fingerprint of this build's variant of it (options and physics), the one
+    /// the run trains on from here. Fixed for the run, so made once.
+    handshake: Handshake,
     /// The number of actors, and of workers (one per actor).
     k: usize,
     /// How a transition's values split into s, a, r, s', terminated, truncated.
@@ -318,8 +320,16 @@ impl Pass {
 
 impl Learner {
     pub fn new(cfg: Config, run_dir: &Path, resume: Option<Resume>) -> Result<Self> {
-        let spec = cfg.env_spec()?;
-        let env_now = selkd_envs::EnvRecord::of(&cfg.run.env, &cfg.env_options)?;
+        // One env for its spec and its record: a `gymnasium:` env is a `gymnasium.make` in Python.
+        let mut made = selkd_envs::make_with(&cfg.run.env, &cfg.env_options)?;
+        let spec = made.spec().clone();
+        let env_now = selkd_envs::EnvRecord::of_env(&cfg.run.env, &cfg.env_options, made.as_mut());
+        let handshake = Handshake::ours(
+            spec.id,
+            selkd_envs::variant_fingerprint(&env_now.options, env_now.physics),
+            spec.obs_dim,
+            spec.act_dim,
+        );
         let device = parse_device(&cfg.run.device)?;
         crate::threads::set(cfg.run.threads);
         crate::matmul::set(cfg.run.cpu_gemm);
@@ -377,7 +387,7 @@ impl Learner {
                 obs_dim: spec.obs_dim,
                 act_dim: spec.act_dim,
             },
-            spec,
+            handshake,
             limiter,
             k,
             workers: Workers::new(k, Duration::from_secs_f64(cfg.run.worker_timeout), resumed),
@@ -569,7 +579,7 @@ impl Learner {
         self.workers.heard(w);
         match r.kind {
             ReportKind::Hello => {
-                if let Err(e) = proto::check_peer(&self.handshake(), &r.handshake()) {
+                if let Err(e) = proto::check_peer(&self.handshake, &r.handshake()) {
                     tracing::error!("worker {w}: {e}");
                     return;
                 }
@@ -767,21 +777,8 @@ impl Learner {
         Ok(())
     }
 
-    /// The learner's side of the handshake, announced in every [`Control`]: the env variant is
-    /// this build's, the one the run trains on from here.
-    fn handshake(&self) -> Handshake {
-        let spec = &self.spec;
-        let now = &self.env.last().expect("a run has its env on record").record;
-        Handshake::ours(
-            spec.id,
-            selkd_envs::variant_fingerprint(&now.options, now.physics),
-            spec.obs_dim,
-            spec.act_dim,
-        )
-    }
-
     fn control(&mut self, stop: bool) -> Control {
-        let ours = self.handshake();
+        let ours = self.handshake;
         let per_actor_cap = self.cfg.steps_per_actor();
         let mut budget = [0u64; MAX_ACTORS];
         match self.cfg.run.mode {
@@ -1353,7 +1350,7 @@ mod tests {
     #[test]
     fn a_hello_asks_for_a_cursor_an_evaluation_scores_its_actor_and_strangers_are_ignored() {
         let (mut l, dir) = learner(Mode::Async);
-        let ours = l.handshake();
+        let ours = l.handshake;
         let hello =
             |worker, h: Handshake, incarnation| proto::Report::hello(h, worker, 0, incarnation);
         l.workers.benched[1] = true;
