@@ -34,30 +34,35 @@ use rapier3d::prelude::PhysicsWorld;
 
 const GEAR: f32 = 200.0;
 const CONTROL_DT: f32 = 0.008;
-/// Physics integration per control step: two rapier steps of 4 ms with 4 solver iterations
-/// each (rapier's TGS substeps, so 1 ms each), and joint limits as 16 Hz springs
-/// ([`SimParams::limit_frequency`]) since the thirteenth session; 1 × 8 with rapier's hard
-/// limits before (8 ms steps allow springs of at most 9.9 Hz, whose gait check failed: 19%).
-/// With the springs our SAC's policies (30k env steps, 3 seeds, 50 episodes) keep their return
-/// and episode length 10× finer within 11% on every seed (mean 2% / 7%), where at 1 × 8 with
-/// hard limits one seed lost 37% / 45% (`docs/results/fidelity.md`); the gait below converges
-/// as well (24 seeds: distance 3%, return and length 0%), and the speed is the same (about
-/// 12k env steps/s either way, one sitting).
+/// Physics integration per control step: eight rapier steps of 1 ms with one solver pass each
+/// (rapier's TGS substeps, so the same 1 ms contact and limit solve as before), and joint limits
+/// as 16 Hz springs ([`SimParams::limit_frequency`]), since the fifteenth session. Chosen by
+/// issue 32's learned check at 100k env steps (`docs/results/fidelity.md`, "The hopper ships
+/// 8 × 1"): policies trained 100k env steps at the previous 2 × 4 leaned on its 4 ms steps (SAC
+/// seed 1 lost 49% of its return 10× finer, REDQ seed 1 gained 64%), through the springs, whose
+/// explicit integration at 4 ms (4π·f·h = 0.80) is stable but not accurate, and through the step
+/// itself; at 1 ms steps (0.20) our SAC's policies keep their return and episode length 10×
+/// finer (80 × 1) within 7% at 30k env steps on 3 seeds. The cost: about 0.6× 2 × 4's speed,
+/// still about 1.6× Gymnasium's MuJoCo Hopper-v5 (one loaded sitting).
 ///
-/// Before (the hard-limit 1 × 8):
+/// Before, 2 × 4 with the springs (thirteenth session): our SAC's policies at 30k env steps
+/// kept their return and episode length within 11% on every seed (mean 2% / 7%), where at 1 × 8
+/// with hard limits one seed lost 37% / 45%; the gait below converges at either (24 seeds:
+/// distance 3%, return and length 0%).
+///
+/// Before that (the hard-limit 1 × 8):
 /// Chosen for convergence (issue 32, `docs/results/fidelity.md`; `tests::fidelity` prints the
 /// table): the scripted gait at 1×8 and integrated 10× finer (10×8) agrees within 3% in
 /// distance and 0% in return and episode length over 24 seeds. The old 1×4 (2 ms TGS substeps)
 /// did not: its gait, climbed at 1×4, survived 1000 steps only there and fell after ~200 steps
 /// at 10×4 (return 955 against 242). What matters is the TGS substep length: 2×4 (also 1 ms)
-/// converges too, 2×2 (2 ms) does not. 1×8 ran at about 0.6–0.8× 1×4's speed and twice 2×4's
-/// then (a loaded sitting; with the springs, one sitting now finds 2×4 as fast as 1×8).
+/// converges too, 2×2 (2 ms) does not.
 /// Earlier measurements (bang-bang torques, random episodes): every setting from 1×2 to 8×8
 /// stayed finite and on the floor; joint-limit overshoot 1×2 0.022 rad, 1×4 0.003 rad.
 pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
-    substeps: 2,
-    solver_iterations: 4,
+    substeps: 8,
+    solver_iterations: 1,
     prediction_distance: RAPIER_PREDICTION_DISTANCE,
     limit_frequency: 16.0,
 };
@@ -305,9 +310,9 @@ mod tests {
             assert!(n <= 1000);
         }
         // Saturated bang-bang torques for a whole episode, ignoring termination: no NaN, joint
-        // limits held to within 5° (the 16 Hz springs' worst: thigh 0.026, leg 0.046, foot 0.030
-        // rad; the hopper's armature of 1 makes them stiff in torque), nothing sinks into the
-        // floor.
+        // limits held to within 5° (the 16 Hz springs' worst at 8 × 1: thigh 0.019, leg 0.031,
+        // foot 0.029 rad; 0.026, 0.046, 0.030 at the previous 2 × 4; the hopper's armature of 1
+        // makes them stiff in torque), nothing sinks into the floor.
         env.reset(Some(1));
         for t in 0..1000 {
             let s = if (t / 7) % 2 == 0 { 1.0 } else { -1.0 };
@@ -428,8 +433,9 @@ mod tests {
     }
 
     /// Issue 32's reward band: a uniform random policy's and a standing (zero-action) policy's
-    /// mean returns over seeds 0–9. The bands are our own measurement at [`SIM`] (random 15.4,
-    /// standing 122.3 with the limit springs; 16.1 and 163.0 at 1 × 8 with hard limits before),
+    /// mean returns over seeds 0–9. The bands are our own measurement at [`SIM`] (random 15.5,
+    /// standing 133.8 at 8 × 1 with the limit springs; 15.4 and 122.3 at 2 × 4 with them, 16.1
+    /// and 163.0 at 1 × 8 with hard limits before),
     /// widened by about half, not a MuJoCo measurement: a physics or reward change that moves
     /// either far (a reward paying for an exploit, standing that no longer stands) fails here.
     #[test]
