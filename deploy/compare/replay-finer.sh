@@ -1,0 +1,67 @@
+#!/usr/bin/env bash
+# Issue 32's learned check on any finished run of one of our rapier tasks: its ranked actor
+# replayed on the same EPISODES fresh episodes (seeds SEED..SEED+EPISODES-1) at the physics it
+# trained on and integrated 10x finer (10x the rapier steps per control step; the same control
+# step, solver iterations, prediction distance and limit springs). The physics come from the
+# run's own record (`state.json`, `env`: the last stretch), so the replay is of the setting the
+# run trained at whatever the build's defaults are now (for the robots' physics keys only: a
+# run's other `[env_options]` are not passed). Writes OUT/coarseEPISODES.json and
+# OUT/fineEPISODES.json (`selkd eval --json`) and prints one table row: mean return and episode
+# length at each, the gap |coarse - fine| / |fine| and the gap's standard error (the two
+# replays' episodes are independent; a gap within about two of them may be the episodes'
+# spread, not the integration). Not a test: a measurement to run by hand
+# (docs/results/fidelity.md).
+#   bash deploy/compare/replay-finer.sh RUN OUT [EPISODES] [SEED]
+#   bash deploy/compare/replay-finer.sh experiments/runs/evidence-rapier/sac/hopper/seed-1 /tmp/r 50 1000
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+run=${1:?usage: replay-finer.sh RUN OUT [EPISODES] [SEED]}
+out=${2:?usage: replay-finer.sh RUN OUT [EPISODES] [SEED]}
+episodes=${3:-50}
+seed=${4:-1000}
+selkd=${SELKD_BIN:-target/release/selkd}
+[ -x "$selkd" ] || { echo "replay-finer: build first: cargo build --release" >&2; exit 1; }
+state="$run/checkpoints/final/state.json"
+[ -f "$state" ] || { echo "replay-finer: $run has no final checkpoint ($state): replay a finished run's directory, not a published one (it has no weights)" >&2; exit 1; }
+# The physics of the run's last stretch, as [env_options] lines: coarse and 10x finer.
+physics() {
+    python3 - "$state" "$1" <<'EOF'
+import json, sys
+env = json.load(open(sys.argv[1])).get("env") or []
+if not env or not env[-1]["record"].get("physics"):
+    sys.exit("replay-finer: the run's state.json records no rapier physics (a run from before "
+             "the env records, or an env without rapier settings)")
+p = env[-1]["record"]["physics"]
+print(f"substeps = {p['substeps'] * int(sys.argv[2])}")
+for key in ("solver_iterations", "prediction_distance", "limit_frequency"):
+    print(f"{key} = {p[key]}")
+EOF
+}
+coarse=$(physics 1)
+fine=$(physics 10)
+mkdir -p "$out"
+"$selkd" eval "$run" --episodes "$episodes" --seed "$seed" --json --env-options "$coarse" \
+    > "$out/coarse$episodes.json" 2>/dev/null
+"$selkd" eval "$run" --episodes "$episodes" --seed "$seed" --json --env-options "$fine" \
+    > "$out/fine$episodes.json" 2>/dev/null
+python3 - "$out/coarse$episodes.json" "$out/fine$episodes.json" "$run" <<'EOF'
+import json, sys
+def best(path):
+    return [a for a in json.load(open(path))["actors"] if a["best"]][0]
+def mean_se(xs):
+    n = len(xs)
+    mu = sum(xs) / n
+    var = sum((x - mu) ** 2 for x in xs) / (n - 1) if n > 1 else 0.0
+    return mu, (var / n) ** 0.5
+def gap(a, b):
+    (ma, sa), (mb, sb) = a, b
+    if not mb:
+        return "n/a"
+    return f"{100 * abs(ma - mb) / abs(mb):.0f}% ± {100 * (sa * sa + sb * sb) ** 0.5 / abs(mb):.0f}%"
+c, f = best(sys.argv[1]), best(sys.argv[2])
+r, rf = mean_se(c["returns"]), mean_se(f["returns"])
+l, lf = mean_se(c["lengths"]), mean_se(f["lengths"])
+print("| run | return | 10x finer | gap ± s.e. | length | 10x finer | gap ± s.e. |")
+print("|---|---|---|---|---|---|---|")
+print(f"| {sys.argv[3]} | {r[0]:.0f} | {rf[0]:.0f} | {gap(r, rf)} | {l[0]:.0f} | {lf[0]:.0f} | {gap(l, lf)} |")
+EOF
