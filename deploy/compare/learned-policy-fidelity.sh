@@ -96,35 +96,4 @@ done | xargs -r -P "$jobs" -I{} bash -c 'one {}'
 for s in $(seq 1 "$seeds"); do
     [ -f "$out/seed-$s.fine$tag.json" ] || echo "$s"
 done | xargs -r -P "$jobs" -I{} bash -c 'replay {}'
-python3 - "$out" "$seeds" "$substeps" "$fine" "$tag" <<'EOF' | tee "$out/table$tag.md"
-import json, sys
-out, seeds, coarse_n, fine_n, tag = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4], sys.argv[5]
-def mean_se(xs):
-    # The mean and its standard error over the episodes.
-    n = len(xs)
-    mu = sum(xs) / n
-    var = sum((x - mu) ** 2 for x in xs) / (n - 1) if n > 1 else 0.0
-    return mu, (var / n) ** 0.5
-def load(s, which):
-    a = [a for a in json.load(open(f"{out}/seed-{s}.{which}{tag}.json"))["actors"] if a["best"]][0]
-    return mean_se(a["returns"]), mean_se(a["lengths"])
-def gap(a, b):
-    # |a - b| / |b| and, after ±, the standard error of that difference (the two replays'
-    # episodes are independent): a gap within about two of them may be the episodes' spread,
-    # not the integration (heavy-tailed episode lengths need more than 50 episodes).
-    (ma, sa), (mb, sb) = a, b
-    if not mb:
-        return "n/a"
-    return f"{100 * abs(ma - mb) / abs(mb):.0f}% ± {100 * (sa * sa + sb * sb) ** 0.5 / abs(mb):.0f}%"
-print(f"| seed | return, {coarse_n} substeps | {fine_n} substeps | gap ± s.e. | length | 10x finer | gap ± s.e. |")
-print("|---|---|---|---|---|---|---|")
-rows = [(s, *load(s, "coarse"), *load(s, "fine")) for s in range(1, seeds + 1)]
-for s, r, l, rf, lf in rows:
-    print(f"| {s} | {r[0]:.0f} | {rf[0]:.0f} | {gap(r, rf)} | {l[0]:.0f} | {lf[0]:.0f} | {gap(l, lf)} |")
-def pooled(i):
-    # The mean over seeds of each seed's mean, and its standard error.
-    ms = [x[i] for x in rows]
-    return sum(m for m, _ in ms) / len(ms), sum(e * e for _, e in ms) ** 0.5 / len(ms)
-r, l, rf, lf = (pooled(i) for i in range(1, 5))
-print(f"| mean | {r[0]:.0f} | {rf[0]:.0f} | {gap(r, rf)} | {l[0]:.0f} | {lf[0]:.0f} | {gap(l, lf)} |")
-EOF
+python3 deploy/compare/replay_gap.py seeds "$out" "$seeds" "$substeps" "$fine" "$tag" | tee "$out/table$tag.md"

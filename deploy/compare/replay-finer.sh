@@ -44,24 +44,4 @@ mkdir -p "$out"
     > "$out/coarse$episodes.json" 2>/dev/null
 "$selkd" eval "$run" --episodes "$episodes" --seed "$seed" --json --env-options "$fine" \
     > "$out/fine$episodes.json" 2>/dev/null
-python3 - "$out/coarse$episodes.json" "$out/fine$episodes.json" "$run" <<'EOF'
-import json, sys
-def best(path):
-    return [a for a in json.load(open(path))["actors"] if a["best"]][0]
-def mean_se(xs):
-    n = len(xs)
-    mu = sum(xs) / n
-    var = sum((x - mu) ** 2 for x in xs) / (n - 1) if n > 1 else 0.0
-    return mu, (var / n) ** 0.5
-def gap(a, b):
-    (ma, sa), (mb, sb) = a, b
-    if not mb:
-        return "n/a"
-    return f"{100 * abs(ma - mb) / abs(mb):.0f}% ± {100 * (sa * sa + sb * sb) ** 0.5 / abs(mb):.0f}%"
-c, f = best(sys.argv[1]), best(sys.argv[2])
-r, rf = mean_se(c["returns"]), mean_se(f["returns"])
-l, lf = mean_se(c["lengths"]), mean_se(f["lengths"])
-print("| run | return | 10x finer | gap ± s.e. | length | 10x finer | gap ± s.e. |")
-print("|---|---|---|---|---|---|---|")
-print(f"| {sys.argv[3]} | {r[0]:.0f} | {rf[0]:.0f} | {gap(r, rf)} | {l[0]:.0f} | {lf[0]:.0f} | {gap(l, lf)} |")
-EOF
+python3 deploy/compare/replay_gap.py row "$out/coarse$episodes.json" "$out/fine$episodes.json" "$run"
