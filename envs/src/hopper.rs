@@ -42,8 +42,11 @@ const CONTROL_DT: f32 = 0.008;
 /// seed 1 lost 49% of its return 10× finer, REDQ seed 1 gained 64%), through the springs, whose
 /// explicit integration at 4 ms (4π·f·h = 0.80) is stable but not accurate, and through the step
 /// itself; at 1 ms steps (0.20) our SAC's policies keep their return and episode length 10×
-/// finer (80 × 1) within 7% at 30k env steps on 3 seeds. The cost: about 0.6× 2 × 4's speed,
-/// still about 1.6× Gymnasium's MuJoCo Hopper-v5 (one loaded sitting).
+/// finer (80 × 1) within 7% at 30k and at 100k env steps on 3 seeds. Not converged in solver
+/// passes: against 80 × 16, three of six 100k policies are 20–49% off (2 × 4's worst: 80–102%);
+/// the setting is to be chosen again against a reference converged in both (`docs/results/
+/// fidelity.md`, "The walker at 100k, and the second axis"). The cost: about 0.6× 2 × 4's
+/// speed, still about 1.6× Gymnasium's MuJoCo Hopper-v5 (one loaded sitting).
 ///
 /// Before, 2 × 4 with the springs (thirteenth session): our SAC's policies at 30k env steps
 /// kept their return and episode length within 11% on every seed (mean 2% / 7%), where at 1 × 8
