@@ -13,6 +13,11 @@
 # (docs/results/fidelity.md).
 #   bash deploy/compare/replay-finer.sh RUN OUT [EPISODES] [SEED]
 #   bash deploy/compare/replay-finer.sh experiments/runs/evidence-rapier/sac/hopper/seed-1 /tmp/r 50 1000
+# FINE_STEPS=F FINE_PASSES=P (defaults 10 and 1) make the reference F x the rapier steps and P x the
+# solver passes: 10 x the steps alone is not converged in solver passes for every policy
+# (docs/results/fidelity.md, "The walker at 100k, and the second axis"); FINE_STEPS=10
+# FINE_PASSES=16 from 8 x 1 is the 80 x 16 used there. The reference's files are then named
+# fineEPISODES-sFxP.json.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 run=${1:?usage: replay-finer.sh RUN OUT [EPISODES] [SEED]}
@@ -25,23 +30,30 @@ state="$run/checkpoints/final/state.json"
 [ -f "$state" ] || { echo "replay-finer: $run has no final checkpoint ($state): replay a finished run's directory, not a published one (it has no weights)" >&2; exit 1; }
 # The physics of the run's last stretch, as [env_options] lines: coarse and 10x finer.
 physics() {
-    python3 - "$state" "$1" <<'EOF'
+    python3 - "$state" "$1" "$2" <<'EOF'
 import json, sys
 env = json.load(open(sys.argv[1])).get("env") or []
 if not env or not env[-1]["record"].get("physics"):
     sys.exit("replay-finer: the run's state.json records no rapier physics (a run from before "
              "the env records, or an env without rapier settings)")
 p = env[-1]["record"]["physics"]
-print(f"substeps = {p['substeps'] * int(sys.argv[2])}")
-for key in ("solver_iterations", "prediction_distance", "limit_frequency"):
+steps, passes = (int(x) for x in sys.argv[2:4])
+print(f"substeps = {p['substeps'] * steps}")
+print(f"solver_iterations = {p['solver_iterations'] * passes}")
+for key in ("prediction_distance", "limit_frequency"):
     print(f"{key} = {p[key]}")
 EOF
 }
-coarse=$(physics 1)
-fine=$(physics 10)
+fine_steps=${FINE_STEPS:-10}
+fine_passes=${FINE_PASSES:-1}
+coarse=$(physics 1 1)
+fine=$(physics "$fine_steps" "$fine_passes")
+# The plain 10x-steps reference keeps its old name; another says which it is.
+ref=""
+[ "$fine_steps$fine_passes" = 101 ] || ref="-s${fine_steps}x$fine_passes"
 mkdir -p "$out"
 "$selkd" eval "$run" --episodes "$episodes" --seed "$seed" --json --env-options "$coarse" \
     > "$out/coarse$episodes.json" 2>/dev/null
 "$selkd" eval "$run" --episodes "$episodes" --seed "$seed" --json --env-options "$fine" \
-    > "$out/fine$episodes.json" 2>/dev/null
-python3 deploy/compare/replay_gap.py row "$out/coarse$episodes.json" "$out/fine$episodes.json" "$run"
+    > "$out/fine$episodes$ref.json" 2>/dev/null
+python3 deploy/compare/replay_gap.py row "$out/coarse$episodes.json" "$out/fine$episodes$ref.json" "$run"
