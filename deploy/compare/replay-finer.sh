@@ -50,10 +50,16 @@ coarse=$(physics 1 1)
 fine=$(physics "$fine_steps" "$fine_passes")
 # The plain 10x-steps reference keeps its old name; another says which it is.
 ref=""
-[ "$fine_steps$fine_passes" = 101 ] || ref="-s${fine_steps}x$fine_passes"
+{ [ "$fine_steps" = 10 ] && [ "$fine_passes" = 1 ]; } || ref="-s${fine_steps}x$fine_passes"
 mkdir -p "$out"
-"$selkd" eval "$run" --episodes "$episodes" --seed "$seed" --json --env-options "$coarse" \
-    > "$out/coarse$episodes.json" 2>/dev/null
-"$selkd" eval "$run" --episodes "$episodes" --seed "$seed" --json --env-options "$fine" \
-    > "$out/fine$episodes$ref.json" 2>/dev/null
+# One replay; `selkd eval`'s stderr (its note that the env differs from the training one, which
+# is the point here) is shown only if it fails.
+replay() {
+    "$selkd" eval "$run" --episodes "$episodes" --seed "$seed" --json --env-options "$1" \
+        > "$2" 2> "$out/eval.log" \
+        || { echo "replay-finer: selkd eval of $run failed:" >&2; cat "$out/eval.log" >&2; exit 1; }
+}
+replay "$coarse" "$out/coarse$episodes.json"
+replay "$fine" "$out/fine$episodes$ref.json"
+rm -f "$out/eval.log"
 python3 deploy/compare/replay_gap.py row "$out/coarse$episodes.json" "$out/fine$episodes$ref.json" "$run"
