@@ -6,8 +6,10 @@ integration; heavy-tailed episode lengths need more than 50 episodes).
 
     python3 replay_gap.py row COARSE.json FINE.json NAME
         one table row (with its header) for one run's two replays
-    python3 replay_gap.py seeds OUT SEEDS COARSE_SUBSTEPS FINE_SUBSTEPS TAG
-        the table of OUT/seed-N.{coarse,fine}TAG.json for N = 1..SEEDS, with the mean over seeds
+    python3 replay_gap.py seeds OUT SEEDS COARSE FINE TAG [REF]
+        the table of OUT/seed-N.coarseTAG.json against OUT/seed-N.fineTAGREF.json for
+        N = 1..SEEDS, with the mean over seeds; COARSE and FINE name the two settings in the
+        header (e.g. "8 x 1" and "80 x 16": rapier steps x solver passes)
 
 Used by learned-policy-fidelity.sh and replay-finer.sh.
 """
@@ -53,15 +55,16 @@ def line(name, r, l, rf, lf):
 
 def main(argv):
     if argv[1:2] == ["row"] and len(argv) == 5:
-        print("| run | return | 10x finer | gap ± s.e. | length | 10x finer | gap ± s.e. |")
+        print("| run | return | finer | gap ± s.e. | length | finer | gap ± s.e. |")
         print("|---|---|---|---|---|---|---|")
         print(line(argv[4], *replays(argv[2], argv[3])))
-    elif argv[1:2] == ["seeds"] and len(argv) == 7:
+    elif argv[1:2] == ["seeds"] and len(argv) in (7, 8):
         out, seeds, coarse_n, fine_n, tag = argv[2], int(argv[3]), argv[4], argv[5], argv[6]
-        print(f"| seed | return, {coarse_n} substeps | {fine_n} substeps | gap ± s.e. | length | 10x finer | gap ± s.e. |")
+        ref = argv[7] if len(argv) == 8 else ""
+        print(f"| seed | return, {coarse_n} | {fine_n} | gap ± s.e. | length, {coarse_n} | {fine_n} | gap ± s.e. |")
         print("|---|---|---|---|---|---|---|")
         rows = [
-            replays(f"{out}/seed-{s}.coarse{tag}.json", f"{out}/seed-{s}.fine{tag}.json")
+            replays(f"{out}/seed-{s}.coarse{tag}.json", f"{out}/seed-{s}.fine{tag}{ref}.json")
             for s in range(1, seeds + 1)
         ]
         for s, row in enumerate(rows, 1):
