@@ -15,7 +15,7 @@
 # `limit_frequency`, Hz) and replay 10x finer than it (10 S substeps, the same I, D and F).
 # Results go to OUT/TASK-SxI[-pD][-jF], named by the setting trained at (shipped or not).
 # Our SAC as in deploy/compare/sac-vs-sb3.sh (SB3's sizes: [256, 256], batch 256, one update per
-# env step, 256 warm-up steps). Resumable: a seed with a final checkpoint is not trained again,
+# env step, 256 warm-up steps). Resumable: a seed whose final checkpoint holds STEPS is not trained again,
 # nor replayed again where its fine replay exists; a training run interrupted midway continues
 # from its latest checkpoint (every tenth of STEPS).
 # FINE_STEPS=F FINE_PASSES=P (defaults 10 and 1) make the reference F x the rapier steps and P x
@@ -105,8 +105,14 @@ tag=""; [ "$episodes" = 10 ] || tag=$episodes
 export -f one replay; export out task steps fine fine_iterations ref selkd episodes tag
 export setting_text="${setting[*]}"
 
+# Finished: its final checkpoint holds the whole budget (a run stopped by SIGTERM also writes
+# `final`, with fewer steps, and is resumed).
+finished() {
+    python3 -c 'import json, sys; sys.exit(json.load(open(sys.argv[1]))["inserted"] < int(sys.argv[2]))' \
+        "$out/seed-$1/checkpoints/final/state.json" "$steps" 2> /dev/null
+}
 for s in $(seq 1 "$seeds"); do
-    [ -f "$out/seed-$s/checkpoints/final/model.safetensors" ] || echo "$s"
+    finished "$s" || echo "$s"
 done | xargs -r -P "$jobs" -I{} bash -c 'one {}'
 for s in $(seq 1 "$seeds"); do
     [ -f "$out/seed-$s.fine$tag$ref.json" ] || echo "$s"

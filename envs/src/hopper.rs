@@ -34,19 +34,19 @@ use rapier3d::prelude::PhysicsWorld;
 
 const GEAR: f32 = 200.0;
 const CONTROL_DT: f32 = 0.008;
-/// Physics integration per control step: eight rapier steps of 1 ms with one solver pass each
-/// (rapier's TGS substeps, so the same 1 ms contact and limit solve as before), and joint limits
-/// as 16 Hz springs ([`SimParams::limit_frequency`]), since the fifteenth session. Chosen by
-/// issue 32's learned check at 100k env steps (`docs/results/fidelity.md`, "The hopper ships
-/// 8 × 1"): policies trained 100k env steps at the previous 2 × 4 leaned on its 4 ms steps (SAC
-/// seed 1 lost 49% of its return 10× finer, REDQ seed 1 gained 64%), through the springs, whose
-/// explicit integration at 4 ms (4π·f·h = 0.80) is stable but not accurate, and through the step
-/// itself; at 1 ms steps (0.20) our SAC's policies keep their return and episode length 10×
-/// finer (80 × 1) within 7% at 30k and at 100k env steps on 3 seeds. Not converged in solver
-/// passes: against 80 × 16, three of six 100k policies are 20–49% off (2 × 4's worst: 80–102%);
-/// the setting is to be chosen again against a reference converged in both (`docs/results/
-/// fidelity.md`, "The walker at 100k, and the second axis"). The cost: about 0.6× 2 × 4's
-/// speed, still about 1.6× Gymnasium's MuJoCo Hopper-v5 (one loaded sitting).
+/// Physics integration per control step: four rapier steps of 2 ms with four solver passes each
+/// (rapier's TGS substeps: the contact and limit solve four times a step), and joint limits as
+/// 16 Hz springs ([`SimParams::limit_frequency`]), since the sixteenth session. Chosen by issue
+/// 32's learned check at 100k env steps against a reference converged in both rapier steps and
+/// solver passes (10 × the steps and 4 × the passes: 40 × 16; `docs/results/fidelity.md`, "The
+/// hopper ships 4 × 4"): our SAC's policies trained 100k env steps at 4 × 4 keep their return
+/// and episode length there (3 seeds, 50 episodes each). At the previous 8 × 1 (fifteenth
+/// session) they kept them 10× finer in steps alone (80 × 1) within 7%, but three of six 100k
+/// policies were 20–49% off 80 × 16: they leaned on the single solver pass. Before that, at 2 × 4
+/// (4 ms steps), they leaned on the step itself and on the springs' explicit integration
+/// (4π·f·h = 0.80; SAC seed 1 lost 49% of its return 10× finer, 80% against 80 × 16). The cost:
+/// about 0.8× 8 × 1's speed, still about 1.3–1.5× Gymnasium's MuJoCo Hopper-v5 (one loaded
+/// sitting, AMD EPYC).
 ///
 /// Before, 2 × 4 with the springs (thirteenth session): our SAC's policies at 30k env steps
 /// kept their return and episode length within 11% on every seed (mean 2% / 7%), where at 1 × 8
@@ -64,8 +64,8 @@ const CONTROL_DT: f32 = 0.008;
 /// stayed finite and on the floor; joint-limit overshoot 1×2 0.022 rad, 1×4 0.003 rad.
 pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
-    substeps: 8,
-    solver_iterations: 1,
+    substeps: 4,
+    solver_iterations: 4,
     prediction_distance: RAPIER_PREDICTION_DISTANCE,
     limit_frequency: 16.0,
 };
@@ -313,9 +313,9 @@ mod tests {
             assert!(n <= 1000);
         }
         // Saturated bang-bang torques for a whole episode, ignoring termination: no NaN, joint
-        // limits held to within 5° (the 16 Hz springs' worst at 8 × 1: thigh 0.019, leg 0.031,
-        // foot 0.029 rad; 0.026, 0.046, 0.030 at the previous 2 × 4; the hopper's armature of 1
-        // makes them stiff in torque), nothing sinks into the floor.
+        // limits held to within 5° (the 16 Hz springs' worst at 4 × 4: thigh 0.022, leg 0.037,
+        // foot 0.029 rad; 0.019, 0.031, 0.029 at the previous 8 × 1, 0.026, 0.046, 0.030 at 2 × 4;
+        // the hopper's armature of 1 makes them stiff in torque), nothing sinks into the floor.
         env.reset(Some(1));
         for t in 0..1000 {
             let s = if (t / 7) % 2 == 0 { 1.0 } else { -1.0 };
@@ -436,8 +436,9 @@ mod tests {
     }
 
     /// Issue 32's reward band: a uniform random policy's and a standing (zero-action) policy's
-    /// mean returns over seeds 0–9. The bands are our own measurement at [`SIM`] (random 15.5,
-    /// standing 133.8 at 8 × 1 with the limit springs; 15.4 and 122.3 at 2 × 4 with them, 16.1
+    /// mean returns over seeds 0–9. The bands are our own measurement at [`SIM`] (random 15.8,
+    /// standing 143.8 at 4 × 4 with the limit springs; 15.5 and 133.8 at 8 × 1 with them, 15.4
+    /// and 122.3 at 2 × 4, 16.1
     /// and 163.0 at 1 × 8 with hard limits before),
     /// widened by about half, not a MuJoCo measurement: a physics or reward change that moves
     /// either far (a reward paying for an exploit, standing that no longer stands) fails here.

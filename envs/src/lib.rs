@@ -595,7 +595,7 @@ mod tests {
         let d = hopper.differences(&finer);
         assert_eq!(d.len(), 3, "{d:?}");
         assert_eq!(d[0], "options: none → substeps = 3");
-        assert_eq!(d[1], "physics.substeps: 8 → 3");
+        assert_eq!(d[1], "physics.substeps: 4 → 3");
         assert!(d[2].starts_with("rollout: "), "{d:?}");
         let near = EnvRecord::of("hopper", &table("prediction_distance = 0.03")).unwrap();
         assert_eq!(
@@ -642,7 +642,7 @@ mod tests {
         assert!(bare
             .differences(&hopper)
             .iter()
-            .any(|l| l == "physics.substeps: none → 8"));
+            .any(|l| l == "physics.substeps: none → 4"));
     }
 
     fn table(text: &str) -> EnvOptions {
