@@ -28,7 +28,8 @@ selkd=${SELKD_BIN:-target/release/selkd}
 [ -x "$selkd" ] || { echo "replay-finer: build first: cargo build --release" >&2; exit 1; }
 state="$run/checkpoints/final/state.json"
 [ -f "$state" ] || { echo "replay-finer: $run has no final checkpoint ($state): replay a finished run's directory, not a published one (it has no weights)" >&2; exit 1; }
-# The physics of the run's last stretch, as [env_options] lines: coarse and 10x finer.
+# The physics of the run's last stretch, as [env_options] lines, with its rapier steps and solver
+# passes multiplied by the two arguments (1 1: the setting it trained at).
 physics() {
     python3 - "$state" "$1" "$2" <<'EOF'
 import json, sys
