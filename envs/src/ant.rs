@@ -98,6 +98,7 @@ pub const SIM: SimParams = SimParams {
     solver_iterations: 1,
     prediction_distance: PREDICTION_DISTANCE,
     limit_frequency: RAPIER_LIMIT_FREQUENCY,
+    implicit_limits: false,
 };
 const PREDICTION_DISTANCE: f32 = 0.1;
 const INIT_Z: f32 = 0.75;

@@ -97,6 +97,7 @@ pub const SIM: SimParams = SimParams {
     solver_iterations: 4,
     prediction_distance: PREDICTION_DISTANCE,
     limit_frequency: RAPIER_LIMIT_FREQUENCY,
+    implicit_limits: false,
 };
 /// Rapier's contact prediction distance, m (its default is 2 cm): the cheetah's feet move
 /// fast against 10 ms steps, and contacts found only once a foot is already inside the floor

@@ -68,6 +68,7 @@ pub const SIM: SimParams = SimParams {
     solver_iterations: 4,
     prediction_distance: RAPIER_PREDICTION_DISTANCE,
     limit_frequency: 16.0,
+    implicit_limits: false,
 };
 const INIT_Z: f32 = 1.25;
 const RESET_NOISE: f32 = 5e-3;

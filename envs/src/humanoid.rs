@@ -106,6 +106,7 @@ pub const SIM: SimParams = SimParams {
     solver_iterations: 1,
     prediction_distance: PREDICTION,
     limit_frequency: 16.0,
+    implicit_limits: false,
 };
 /// Rapier's contact prediction distance, m: contacts are found this far ahead, so a foot
 /// moving at a few m/s in a 7.5 ms step does not sink into the floor before its contact
@@ -174,6 +175,8 @@ pub struct HumanoidOptions {
     pub prediction_distance: Option<f32>,
     /// Overrides [`SIM`]'s joint-limit frequency, Hz.
     pub limit_frequency: Option<f32>,
+    /// Overrides [`SIM`]'s choice of implicit limit springs.
+    pub implicit_limits: Option<bool>,
 }
 
 impl Default for HumanoidOptions {
@@ -187,6 +190,7 @@ impl Default for HumanoidOptions {
             solver_iterations: None,
             prediction_distance: None,
             limit_frequency: None,
+            implicit_limits: None,
         }
     }
 }
@@ -199,6 +203,7 @@ impl HumanoidOptions {
             solver_iterations: self.solver_iterations,
             prediction_distance: self.prediction_distance,
             limit_frequency: self.limit_frequency,
+            implicit_limits: self.implicit_limits,
         }
     }
 

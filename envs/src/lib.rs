@@ -708,9 +708,18 @@ mod tests {
             let e = err(name, "limit_frequency = 500");
             assert!(
                 e.contains("`limit_frequency` 500 Hz is too stiff")
-                    && e.contains("set `substeps` to at least"),
+                    && e.contains("set `substeps` to at least")
+                    && e.contains("or `implicit_limits` to true"),
                 "{e}"
             );
+            // Implicit springs are stable at any step.
+            assert!(make_with(
+                name,
+                &table("limit_frequency = 500\nimplicit_limits = true")
+            )
+            .is_ok());
+            let e = err(name, "implicit_limits = 1");
+            assert!(e.contains("expected a boolean"), "{e}");
             assert!(make_with(
                 name,
                 &table(
