@@ -71,10 +71,11 @@ pub struct SimParams {
     pub limit_frequency: f32,
     /// Whether the limit springs are integrated implicitly (backward Euler on each hinge's own
     /// coordinate, [`Articulation::add_limit_torques`]) instead of explicitly: stable at any
-    /// step, and converged at coarser ones (issue 32: the walker's gait in the air, its hips
-    /// starting at their limit, pitched 19% further at 4 × 4 than at 40 × 4 with explicit
-    /// springs, 1.5% with implicit ones). Off where a task's shipped setting was measured
-    /// with explicit springs; absent in records older than it (so false).
+    /// step (issue 32: the walker's gait in the air, its hips starting at their limit, pitched
+    /// 19% further at 4 × 4 than at 40 × 4 with explicit springs, 1.5% with implicit ones), but
+    /// numerically damped: our SAC's walker policies trained at 4 × 4 with them leaned on that
+    /// damping, 41–42% off 40 × 16 (`docs/results/fidelity.md`, "Implicit limit springs"), so
+    /// every task ships with it off. Absent in records older than it (so false).
     #[serde(default)]
     pub implicit_limits: bool,
 }
