@@ -605,9 +605,8 @@ impl Articulation {
     /// only pushing back, as a limit does. Explicit damping needs `2ζωh ≤ 1` for a rapier step
     /// of `h` s ([`SimParams::check_limit`]). Implicit springs push with the state at the end of
     /// the step instead, as if the hinge moved alone with inertia `I` (backward Euler: the push
-    /// is `I·(ω²·r + (2ζω + hω²)·u) / (1 + h·(2ζω + hω²))`), which is stable at any `h` and
-    /// does not kick a hinge off its limit at coarse steps as the explicit damper does where
-    /// the hinge's apparent inertia is below its rest pose's.
+    /// is `I·(ω²·r + (2ζω + hω²)·u) / (1 + h·(2ζω + hω²))`, the explicit push at `h = 0`),
+    /// which is stable at any `h`.
     pub fn add_limit_torques(&self, w: &PhysicsWorld, torques: &mut [f32]) {
         let Some(soft) = &self.soft_limits else {
             return;
@@ -615,7 +614,11 @@ impl Articulation {
         let (q, v) = (self.qpos(w), self.qvel(w));
         let (root_nq, root_nv) = (self.root.nq(), self.root.nv());
         let omega = soft.omega;
-        let damping = 2.0 * LIMIT_DAMPING_RATIO * omega;
+        // Explicit springs are the implicit ones at h = 0 (the same push, bit for bit).
+        let h = soft.implicit_step.unwrap_or(0.0);
+        // The velocity term's coefficient once the spring acts on r + h·u, and the divisor.
+        let velocity_gain = 2.0 * LIMIT_DAMPING_RATIO * omega + h * omega * omega;
+        let divisor = 1.0 + h * velocity_gain;
         for i in 1..self.bodies.len() {
             let Some([lo, hi]) = self.ranges[i] else {
                 continue;
@@ -629,14 +632,7 @@ impl Articulation {
             } else {
                 continue;
             };
-            let push = match soft.implicit_step {
-                None => soft.inertia[i] * (omega * omega * r + damping * s * vi),
-                Some(h) => {
-                    // The velocity term's coefficient once the spring acts on r + h·u.
-                    let b = damping + h * omega * omega;
-                    soft.inertia[i] * (omega * omega * r + b * s * vi) / (1.0 + h * b)
-                }
-            };
+            let push = soft.inertia[i] * (omega * omega * r + velocity_gain * s * vi) / divisor;
             torques[i - 1] -= s * push.max(0.0);
         }
     }
