@@ -216,12 +216,29 @@ fn parse_options<T: serde::de::DeserializeOwned>(
     env: &str,
     options: &EnvOptions,
 ) -> Result<T, EnvError> {
-    toml::Value::Table(options.clone())
-        .try_into()
-        .map_err(|e: toml::de::Error| EnvError::Options {
+    let read = |table: &EnvOptions| -> Result<T, String> {
+        toml::Value::Table(table.clone())
+            .try_into()
+            .map_err(|e: toml::de::Error| e.message().trim().to_string())
+    };
+    read(options).map_err(|message| {
+        // toml's type errors ("invalid type: integer `1`, expected a boolean") do not say which
+        // key: the key that alone gives the same error is the one.
+        let culprit = options.iter().find(|(key, value)| {
+            let alone = EnvOptions::from_iter([((*key).clone(), (*value).clone())]);
+            read(&alone).err().as_deref() == Some(message.as_str())
+        });
+        let message = match culprit {
+            Some((key, _)) if !message.contains(&format!("`{key}`")) => {
+                format!("`{key}`: {message}")
+            }
+            _ => message,
+        };
+        EnvError::Options {
             env: env.into(),
-            message: e.message().trim().to_string(),
-        })
+            message,
+        }
+    })
 }
 
 /// A robot's physics settings: its `default`, overridden by the `substeps`,
@@ -665,6 +682,8 @@ mod tests {
             e.contains("env_options for `pendulum`") && e.contains("gravity"),
             "{e}"
         );
+        let e = err("pendulum", "g = \"strong\"");
+        assert!(e.contains("`g`: invalid type: string"), "{e}");
         let e = err("pendulum", "g = -1.0");
         assert!(e.contains("g = -1 must be a positive number"), "{e}");
         let e = err("hopper", "g = 1.0");
@@ -718,8 +737,12 @@ mod tests {
                 &table("limit_frequency = 500\nimplicit_limits = true")
             )
             .is_ok());
-            let e = err(name, "implicit_limits = 1");
-            assert!(e.contains("expected a boolean"), "{e}");
+            // A wrong type names its key (toml's own message does not).
+            let e = err(name, "substeps = 4\nimplicit_limits = 1");
+            assert!(
+                e.contains("`implicit_limits`: invalid type") && e.contains("expected a boolean"),
+                "{e}"
+            );
             assert!(make_with(
                 name,
                 &table(
