@@ -223,14 +223,15 @@ fn parse_options<T: serde::de::DeserializeOwned>(
     };
     read(options).map_err(|message| {
         // toml's type errors ("invalid type: integer `1`, expected a boolean") do not say which
-        // key: the key that alone gives the same error is the one.
+        // key: the key that alone gives the same error is the one (named as the run config's
+        // own errors name theirs).
         let culprit = options.iter().find(|(key, value)| {
             let alone = EnvOptions::from_iter([((*key).clone(), (*value).clone())]);
             read(&alone).err().as_deref() == Some(message.as_str())
         });
         let message = match culprit {
             Some((key, _)) if !message.contains(&format!("`{key}`")) => {
-                format!("`{key}`: {message}")
+                format!("{message} in `{key}`")
             }
             _ => message,
         };
@@ -683,7 +684,10 @@ mod tests {
             "{e}"
         );
         let e = err("pendulum", "g = \"strong\"");
-        assert!(e.contains("`g`: invalid type: string"), "{e}");
+        assert!(
+            e.contains("invalid type: string \"strong\"") && e.ends_with("in `g`"),
+            "{e}"
+        );
         let e = err("pendulum", "g = -1.0");
         assert!(e.contains("g = -1 must be a positive number"), "{e}");
         let e = err("hopper", "g = 1.0");
@@ -740,7 +744,7 @@ mod tests {
             // A wrong type names its key (toml's own message does not).
             let e = err(name, "substeps = 4\nimplicit_limits = 1");
             assert!(
-                e.contains("`implicit_limits`: invalid type") && e.contains("expected a boolean"),
+                e.ends_with("invalid type: integer `1`, expected a boolean in `implicit_limits`"),
                 "{e}"
             );
             assert!(make_with(
