@@ -120,6 +120,17 @@ fn from_flags(b: &LearnerBench) -> Result<Setup> {
         "per-critic" => Sharing::PerCritic,
         other => anyhow::bail!("--sharing {other}: use per-update or per-critic"),
     };
+    for (flag, value) in [
+        ("--g", b.g),
+        ("--batch", b.batch),
+        ("--obs", b.obs),
+        ("--act", b.act),
+        ("--hidden", b.hidden),
+    ] {
+        if value == 0 {
+            anyhow::bail!("{flag} must be at least 1");
+        }
+    }
     if b.m == 0 || b.m > b.n || b.k == 0 {
         anyhow::bail!(
             "need 1 ≤ --m ≤ --n and --k ≥ 1 (got k {}, n {}, m {})",
@@ -198,6 +209,9 @@ fn from_config(path: &Path, set: &[String]) -> Result<Setup> {
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Learner(b) => {
+            if b.rounds == 0 {
+                anyhow::bail!("--rounds must be at least 1");
+            }
             let Setup {
                 cfg,
                 obs,
@@ -241,6 +255,9 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
             steps,
             env_options,
         } => {
+            if steps == 0 {
+                anyhow::bail!("--steps must be at least 1");
+            }
             let options = match env_options {
                 Some(text) => crate::render::parse_env_options(&text)?,
                 None => Default::default(),

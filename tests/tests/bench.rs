@@ -52,6 +52,7 @@ fn bench_env_steps_the_env_with_its_options() {
             "--env-options",
         ),
         (vec!["hoper"], "hoper"),
+        (vec!["hopper", "--steps", "0"], "--steps must be at least 1"),
     ] {
         let (ok, _, err) = bench(&args);
         assert!(!ok && err.contains(want), "{args:?}: {err}");
@@ -109,9 +110,22 @@ fn bench_learner_with_a_config_benches_its_sizes_and_prices_its_budget() {
             "algo.subset",
         ),
         (vec!["--config", "configs/nope.toml"], "configs/nope.toml"),
+        // Sizes of zero are refused in a line, not by a panic deep in the networks.
+        (vec!["--batch", "0"], "--batch must be at least 1"),
+        (vec!["--hidden", "0"], "--hidden must be at least 1"),
+        (vec!["--obs", "0"], "--obs must be at least 1"),
+        (vec!["--g", "0"], "--g must be at least 1"),
     ] {
         let (ok, _, err) = bench_learner(&args);
         assert!(!ok && err.contains(want), "{args:?}: {err}");
         assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
     }
+    let mut c = Command::new(bin("selkd"));
+    c.args(["bench", "learner", "--rounds", "0"]);
+    let out = run(c);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.trim() == "selkd: error: --rounds must be at least 1",
+        "{err}"
+    );
 }
