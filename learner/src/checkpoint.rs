@@ -554,8 +554,11 @@ pub fn load_actor(path: &Path, actor: Option<usize>) -> Result<LoadedActor> {
     };
     if index >= k {
         bail!(
-            "--actor {index}: the checkpoint has {k} actors (0 to {})",
-            k - 1
+            "--actor {index}: the checkpoint has {}",
+            match k {
+                1 => "one actor (0)".to_string(),
+                _ => format!("{k} actors (0 to {})", k - 1),
+            }
         );
     }
     let dims: Vec<usize> = std::iter::once(layers[0].0.size()[1] as usize)
