@@ -54,8 +54,10 @@ const CONTROL_DT: f32 = 0.008;
 /// 8 × 4) were 21–31% off, every seed earning less at its setting; implicit limit springs at
 /// 4 × 4 were leaned on (41–42%). No setting tried passes on every seed: the lunge of the
 /// scripted gait goes 0.55 m wherever rapier steps × passes is 64 or less and 0.7–0.8 m from 256
-/// on, a dependence on passes not yet explained (`docs/results/fidelity.md`, "The walker at
-/// 1 ms steps"). About 0.8–0.9× MuJoCo's Walker2d-v5 speed (4 × 2: 1.3×).
+/// on and does not settle: rapier's stabilization (relax) pass, measured without it at 2–12%
+/// from 2 × 4 to 8 × 4 but not yet trained with (`docs/results/fidelity.md`, "The walker at
+/// 1 ms steps" and "… rapier's stabilization pass"). About 0.9× MuJoCo's Walker2d-v5 speed
+/// (4 × 2: 1.3×).
 ///
 /// Measured (4 seeds × 500 steps of saturated bang-bang torques, and 30 random episodes, per
 /// setting; rapier steps × iterations): every setting from 1×2 to 8×2 stayed finite and above
