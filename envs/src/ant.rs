@@ -99,6 +99,7 @@ pub const SIM: SimParams = SimParams {
     prediction_distance: PREDICTION_DISTANCE,
     limit_frequency: RAPIER_LIMIT_FREQUENCY,
     implicit_limits: false,
+    stabilization_iterations: crate::physics::RAPIER_STABILIZATION_ITERATIONS,
 };
 const PREDICTION_DISTANCE: f32 = 0.1;
 const INIT_Z: f32 = 0.75;

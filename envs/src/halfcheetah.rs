@@ -98,6 +98,7 @@ pub const SIM: SimParams = SimParams {
     prediction_distance: PREDICTION_DISTANCE,
     limit_frequency: RAPIER_LIMIT_FREQUENCY,
     implicit_limits: false,
+    stabilization_iterations: crate::physics::RAPIER_STABILIZATION_ITERATIONS,
 };
 /// Rapier's contact prediction distance, m (its default is 2 cm): the cheetah's feet move
 /// fast against 10 ms steps, and contacts found only once a foot is already inside the floor

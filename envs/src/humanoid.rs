@@ -107,6 +107,7 @@ pub const SIM: SimParams = SimParams {
     prediction_distance: PREDICTION,
     limit_frequency: 16.0,
     implicit_limits: false,
+    stabilization_iterations: crate::physics::RAPIER_STABILIZATION_ITERATIONS,
 };
 /// Rapier's contact prediction distance, m: contacts are found this far ahead, so a foot
 /// moving at a few m/s in a 7.5 ms step does not sink into the floor before its contact
@@ -177,6 +178,8 @@ pub struct HumanoidOptions {
     pub limit_frequency: Option<f32>,
     /// Overrides [`SIM`]'s choice of implicit limit springs.
     pub implicit_limits: Option<bool>,
+    /// Overrides [`SIM`]'s relax iterations per solver pass.
+    pub stabilization_iterations: Option<usize>,
 }
 
 impl Default for HumanoidOptions {
@@ -191,6 +194,7 @@ impl Default for HumanoidOptions {
             prediction_distance: None,
             limit_frequency: None,
             implicit_limits: None,
+            stabilization_iterations: None,
         }
     }
 }
@@ -204,6 +208,7 @@ impl HumanoidOptions {
             prediction_distance: self.prediction_distance,
             limit_frequency: self.limit_frequency,
             implicit_limits: self.implicit_limits,
+            stabilization_iterations: self.stabilization_iterations,
         }
     }
 

@@ -741,6 +741,13 @@ mod tests {
                 &table("limit_frequency = 500\nimplicit_limits = true")
             )
             .is_ok());
+            // Rapier's relax iterations per pass: 0 is allowed (none), 17 is not.
+            assert!(make_with(name, &table("stabilization_iterations = 0")).is_ok());
+            let e = err(name, "stabilization_iterations = 17");
+            assert!(
+                e.contains("`stabilization_iterations` must be 0 to 16, got 17 (the default is 1)"),
+                "{e}"
+            );
             // A wrong type names its key (toml's own message does not).
             let e = err(name, "substeps = 4\nimplicit_limits = 1");
             assert!(
@@ -791,6 +798,9 @@ mod tests {
         assert_eq!(default, gait(&format!("limit_frequency = {limit}")));
         // (7 Hz: the stiffest springs the cheetah's 10 ms steps allow are 8 Hz.)
         assert_ne!(default, gait("limit_frequency = 7"));
+        // Rapier's relax iterations act once the feet touch the floor.
+        assert_eq!(default, gait("stabilization_iterations = 1"));
+        assert_ne!(default, gait("stabilization_iterations = 0"));
         // fpc-assembly's tolerances are options: read, and checked by the env.
         let e = err("fpc-assembly", "lateral_tol_mm = -0.1");
         assert!(

@@ -84,6 +84,7 @@ pub const SIM: SimParams = SimParams {
     prediction_distance: RAPIER_PREDICTION_DISTANCE,
     limit_frequency: 16.0,
     implicit_limits: false,
+    stabilization_iterations: crate::physics::RAPIER_STABILIZATION_ITERATIONS,
 };
 const INIT_Z: f32 = 1.25;
 const RESET_NOISE: f32 = 5e-3;
