@@ -192,13 +192,15 @@ pub const MAX_PHYSICS_STEPS: usize = 640;
 impl PhysicsOptions {
     /// `default` with these overrides, or a message naming the bad key.
     pub fn apply(&self, default: SimParams) -> Result<SimParams, String> {
-        let check = |key: &str, value: Option<usize>, default: usize| match value {
-            None => Ok(default),
-            Some(n) if (1..=MAX_PHYSICS_STEPS).contains(&n) => Ok(n),
-            Some(n) => Err(format!(
-                "`{key}` must be 1 to {MAX_PHYSICS_STEPS}, got {n} (the default is {default})"
-            )),
-        };
+        // A count from `min` to `max`.
+        let count =
+            |key: &str, value: Option<usize>, default: usize, min: usize, max: usize| match value {
+                None => Ok(default),
+                Some(n) if (min..=max).contains(&n) => Ok(n),
+                Some(n) => Err(format!(
+                    "`{key}` must be {min} to {max}, got {n} (the default is {default})"
+                )),
+            };
         // A positive amount up to `max`, in `unit`.
         let positive =
             |key: &str, value: Option<f32>, default: f32, max: f32, unit: &str| match value {
@@ -225,26 +227,30 @@ impl PhysicsOptions {
         )?;
         let sim = SimParams {
             control_dt: default.control_dt,
-            substeps: check("substeps", self.substeps, default.substeps)?,
-            solver_iterations: check(
+            substeps: count(
+                "substeps",
+                self.substeps,
+                default.substeps,
+                1,
+                MAX_PHYSICS_STEPS,
+            )?,
+            solver_iterations: count(
                 "solver_iterations",
                 self.solver_iterations,
                 default.solver_iterations,
+                1,
+                MAX_PHYSICS_STEPS,
             )?,
             prediction_distance,
             limit_frequency,
             implicit_limits: self.implicit_limits.unwrap_or(default.implicit_limits),
-            stabilization_iterations: match self.stabilization_iterations {
-                None => default.stabilization_iterations,
-                Some(n) if n <= MAX_STABILIZATION_ITERATIONS => n,
-                Some(n) => {
-                    return Err(format!(
-                        "`stabilization_iterations` must be 0 to {MAX_STABILIZATION_ITERATIONS}, \
-                         got {n} (the default is {})",
-                        default.stabilization_iterations
-                    ))
-                }
-            },
+            stabilization_iterations: count(
+                "stabilization_iterations",
+                self.stabilization_iterations,
+                default.stabilization_iterations,
+                0,
+                MAX_STABILIZATION_ITERATIONS,
+            )?,
         };
         sim.check_limit()?;
         Ok(sim)
