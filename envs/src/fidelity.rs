@@ -277,7 +277,7 @@ fn hopper_gait_converged() {
 
 #[test]
 fn walker2d_gait_converged() {
-    assert_converged("walker2d", &[(10, 1)]);
+    assert_converged("walker2d", &[(10, 1), (10, 4)]);
 }
 
 /// Diagnosis (scratch): the cheetah's sine gait in the air (50 m up, so the floor is never

@@ -83,8 +83,9 @@ pub struct SimParams {
     /// velocity out again (rapier's default 1). Issue 32: with 1, the walker's gait goes
     /// further the more passes a control step has and does not settle (0.57 m at 4 × 4, 0.84 at
     /// 80 × 32); with 0 it is within 2–12% of 80 × 32 at every setting from 2 × 4 to 8 × 4
-    /// (`docs/results/fidelity.md`, "… rapier's stabilization pass"). Every task ships 1 until
-    /// a learned check says otherwise. Absent in records older than it (so 1).
+    /// (`docs/results/fidelity.md`, "… rapier's stabilization pass"). The walker ships 0 since
+    /// its learned check held there ([`crate::walker2d::SIM`]); every other task 1 (the hopper's
+    /// gait does not move with it). Absent in records older than it (so 1).
     #[serde(default = "rapier_stabilization_iterations")]
     pub stabilization_iterations: usize,
 }

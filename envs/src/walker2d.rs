@@ -24,11 +24,11 @@
 //! integrator instead of MuJoCo's RK4 (see [`SIM`]). Random-policy episodes end about as fast
 //! as MuJoCo's (see the test `random_policy_episode_length_is_plausible`).
 //!
-//! Speed, random actions and resets on one thread, same sitting, on the 2-core dev machine
-//! under heavy load from other jobs (load average ~10, so both numbers are low and noisy):
-//! `selkd bench env walker2d` 2951 env steps/s vs Gymnasium's `Walker2d-v5` (MuJoCo 3, RK4)
-//! 1606 steps/s; a second sitting (load ~7) 3794 vs 1808. An earlier, quieter sitting: ours
-//! ~8k vs MuJoCo 3.4k–7.5k.
+//! Speed, random actions and resets on one thread, same sitting (`selkd bench env walker2d
+//! --steps 10000` against `deploy/gym_env_steps.py Walker2d-v5 10000`, Gymnasium 1.4, MuJoCo
+//! 4.0, RK4), two interleaved rounds on the 2-core `AMD EPYC` dev machine with two training
+//! runs on its cores: 6.6k and 7.1k env steps/s against MuJoCo's 4.3k and 4.7k (the 4 × 4 it
+//! replaced: 4.5k and 5.3k). `docs/performance.md` has the history.
 //!
 //! A state that goes non-finite (rapier quarantines such bodies) terminates the episode with a
 //! zero observation: the env never emits NaN.
@@ -45,19 +45,22 @@ use rapier3d::prelude::PhysicsWorld;
 const GEAR: f32 = 100.0;
 const CONTROL_DT: f32 = 0.008;
 /// Physics integration per control step: 4 rapier steps of 2 ms (MuJoCo's own timestep) with
-/// 4 solver iterations each (4 × 4, as the hopper; 4 × 2 until the eighteenth session).
+/// 2 solver iterations each and **no stabilization (relax) iterations**
+/// ([`SimParams::stabilization_iterations`] 0; rapier's default is 1). 4 × 4 with the relax
+/// pass in the eighteenth session, 4 × 2 with it before.
 ///
-/// Why 4 × 4: our SAC's policies trained 100k env steps at 4 × 2 earned 35% / 26% more
-/// return / episode length there than integrated with 10× the steps and 4× the solver passes
-/// (40 × 8): they leaned on its error. At 4 × 4 they are 6% / 12% off 40 × 16 on the mean of 3
-/// seeds, the one seed past 15% (17% / 23%) earning *less* at 4 × 4, not more; 1 ms steps (8 × 2,
-/// 8 × 4) were 21–31% off, every seed earning less at its setting; implicit limit springs at
-/// 4 × 4 were leaned on (41–42%). No setting tried passes on every seed: the lunge of the
-/// scripted gait goes 0.55 m wherever rapier steps × passes is 64 or less and 0.7–0.8 m from 256
-/// on and does not settle: rapier's stabilization (relax) pass, measured without it at 2–12%
-/// from 2 × 4 to 8 × 4 but not yet trained with (`docs/results/fidelity.md`, "The walker at
-/// 1 ms steps" and "… rapier's stabilization pass"). About 0.9× MuJoCo's Walker2d-v5 speed
-/// (4 × 2: 1.3×).
+/// Why no relax pass: with it, the walker's gait went further the more solver passes a control
+/// step had and did not settle (0.57 m at 4 × 4, 0.84 m at 80 × 32), so no setting had a
+/// converged reference to be measured against; without it the gait goes 0.58–0.60 m at every
+/// reference from 40 × 4 to 160 × 32 and 4 × 2 is within 12% / 7% / 2% (distance / return /
+/// length, seeds 0–9) of 10× the steps and 4× the passes (`fidelity::walker2d_gait_converged`).
+/// Our SAC's policies trained 100k env steps at this setting kept their return / length
+/// against 40 × 8 (same solver) within 11% / 10%, 12% / 20% (200 episodes; ± 5% / 6%) and
+/// 8% / 14%, mean 10% / 14%: each earns a little more at its setting than converged, far less
+/// than at 4 × 2 with the relax pass (35% / 26%). The setting it replaces, 4 × 4 with the relax
+/// pass, was 6% / 12% on the mean against its own 40 × 16 (seed 2 17% / 23% the other way) and
+/// ran at about MuJoCo's speed; this one runs at about 1.5× (`docs/results/fidelity.md`, "The
+/// walker ships 4 × 2 without the relax pass").
 ///
 /// Measured (4 seeds × 500 steps of saturated bang-bang torques, and 30 random episodes, per
 /// setting; rapier steps × iterations): every setting from 1×2 to 8×2 stayed finite and above
@@ -75,16 +78,17 @@ const CONTROL_DT: f32 = 0.008;
 /// at 8 passes than converged, and policies trained on it lost 37–145% integrated 10× finer.
 /// With the springs, our SAC's policies (30k env steps, 3 seeds, 50 episodes; at 4 × 2) kept
 /// their return and episode length 10× finer within 3% and 9% on the mean (4–8% and 4–17% per
-/// seed): `docs/results/fidelity.md`. The scripted gait, re-climbed at 4 × 4, keeps its
-/// distance, return and length against 10× the steps within 9%, 2% and 4% (seeds 0–9).
+/// seed): `docs/results/fidelity.md`. The scripted gait ([`crate::gaits::WALKER2D`], climbed
+/// at 4 × 4 with the relax pass) keeps its distance, return and length at this setting within
+/// 8%, 3% and 0% of 10× the steps (seeds 0–9).
 pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
     substeps: 4,
-    solver_iterations: 4,
+    solver_iterations: 2,
     prediction_distance: RAPIER_PREDICTION_DISTANCE,
     limit_frequency: 16.0,
     implicit_limits: false,
-    stabilization_iterations: crate::physics::RAPIER_STABILIZATION_ITERATIONS,
+    stabilization_iterations: 0,
 };
 const INIT_Z: f32 = 1.25;
 const RESET_NOISE: f32 = 5e-3;
