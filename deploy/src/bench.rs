@@ -3,7 +3,9 @@
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use rand::{Rng, SeedableRng};
-use selkd_learner::config::{AlgoConfig, AlgoKeys, Config, Precision, Regulariser, Sharing};
+use selkd_learner::config::{
+    bytes, physical_memory, AlgoConfig, AlgoKeys, Config, Precision, Regulariser, Sharing,
+};
 use selkd_learner::matmul::CpuGemm;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -176,6 +178,23 @@ fn from_flags(b: &LearnerBench) -> Result<Setup> {
         ..AlgoKeys::default()
     })
     .map_err(anyhow::Error::msg)?;
+    // As `selkd train` refuses a config that cannot fit: an allocation failing inside libtorch
+    // is an abort, not a message.
+    if b.device == "cpu" {
+        if let Some(physical) = physical_memory() {
+            let need = cfg.network_bytes(b.obs, b.act);
+            if need > physical {
+                anyhow::bail!(
+                    "the networks (--hidden {}, --k {}, --n {}) with their gradients and Adam state need at least {}, more than this machine's {}; lower them",
+                    b.hidden,
+                    b.k,
+                    b.n,
+                    bytes(need),
+                    bytes(physical)
+                );
+            }
+        }
+    }
     Ok(Setup {
         cfg,
         obs: b.obs,

@@ -302,6 +302,44 @@ pub struct AlgoConfig {
     pub critic_matmul: Precision,
 }
 
+impl AlgoConfig {
+    /// A lower bound of the bytes the K actors and N critics take (of every AVTD variant): per
+    /// parameter its value, its gradient and Adam's two moments, plus the target critics (and
+    /// TD3's target actors), for an env of these sizes.
+    pub fn network_bytes(&self, obs_dim: usize, act_dim: usize) -> u64 {
+        let (obs, act) = (obs_dim as u128, act_dim as u128);
+        let variants = self.method.variants().len().max(1) as u128;
+        // Weights and biases of one member of a stacked ensemble with these layer sizes.
+        let params = |input: u128, output: u128| -> u128 {
+            let dims: Vec<u128> = std::iter::once(input)
+                .chain(self.hidden.iter().map(|&h| h as u128))
+                .chain(std::iter::once(output))
+                .collect();
+            dims.windows(2)
+                .map(|w| w[0].saturating_mul(w[1]).saturating_add(w[1]))
+                .fold(0u128, u128::saturating_add)
+        };
+        let actors = (self.actors as u128) * variants;
+        let critics = (self.critics as u128) * variants;
+        // value + gradient + Adam's m and v; targets are one more copy.
+        let actor_copies = if self.backbone.is_td3() { 5 } else { 4 };
+        let actor_floats = params(obs, 2 * act)
+            .saturating_mul(actors)
+            .saturating_mul(actor_copies)
+            // log α per actor, with its gradient and moments
+            .saturating_add(4 * actors);
+        let critic_floats = params(obs + act, 1)
+            .saturating_mul(critics)
+            .saturating_mul(5);
+        float_bytes(actor_floats.saturating_add(critic_floats))
+    }
+}
+
+/// Bytes of `floats` f32 values, saturating at `u64::MAX`.
+fn float_bytes(floats: u128) -> u64 {
+    floats.saturating_mul(4).min(u64::MAX as u128) as u64
+}
+
 /// The method: which critics an actor's target and objective use, which critics a critic
 /// update trains, and whom an actor distils toward. Each variant carries the settings only it
 /// has, so a combination that no method is cannot be held. REDQ, Maxmin, Average-DQN, REM, AQE,
@@ -1060,29 +1098,6 @@ impl Config {
             .map_err(|e| ConfigError::Invalid(one_line(&e.to_string())))?;
         let a = &self.algo;
         let (obs, act) = (spec.obs_dim as u128, spec.act_dim as u128);
-        let variants = a.method.variants().len().max(1) as u128;
-        // Weights and biases of one member of a stacked ensemble with these layer sizes.
-        let params = |input: u128, output: u128| -> u128 {
-            let dims: Vec<u128> = std::iter::once(input)
-                .chain(a.hidden.iter().map(|&h| h as u128))
-                .chain(std::iter::once(output))
-                .collect();
-            dims.windows(2)
-                .map(|w| w[0].saturating_mul(w[1]).saturating_add(w[1]))
-                .fold(0u128, u128::saturating_add)
-        };
-        let actors = (a.actors as u128) * variants;
-        let critics = (a.critics as u128) * variants;
-        // value + gradient + Adam's m and v; targets are one more copy.
-        let actor_copies = if a.backbone.is_td3() { 5 } else { 4 };
-        let actor_floats = params(obs, 2 * act)
-            .saturating_mul(actors)
-            .saturating_mul(actor_copies)
-            // log α per actor, with its gradient and moments
-            .saturating_add(4 * actors);
-        let critic_floats = params(obs + act, 1)
-            .saturating_mul(critics)
-            .saturating_mul(5);
         let row = 2 * obs + act + 2;
         let mut rows = a.replay_capacity as u128;
         if let Method::Avtd {
@@ -1091,10 +1106,9 @@ impl Config {
         {
             rows += (a.replay_capacity as u128 / validation_every.max(1) as u128).max(1);
         }
-        let to_bytes = |floats: u128| floats.saturating_mul(4).min(u64::MAX as u128) as u64;
         Ok(MemoryEstimate {
-            replay: to_bytes(rows.saturating_mul(row)),
-            networks: to_bytes(actor_floats.saturating_add(critic_floats)),
+            replay: float_bytes(rows.saturating_mul(row)),
+            networks: a.network_bytes(spec.obs_dim, spec.act_dim),
         })
     }
 

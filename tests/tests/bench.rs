@@ -115,6 +115,9 @@ fn bench_learner_with_a_config_benches_its_sizes_and_prices_its_budget() {
         (vec!["--hidden", "0"], "--hidden must be at least 1"),
         (vec!["--obs", "0"], "--obs must be at least 1"),
         (vec!["--g", "0"], "--g must be at least 1"),
+        // Networks no machine holds (10 critics of 10⁶ × 10⁶ weights: 200 TB with their
+        // gradients, Adam state and targets) are refused before libtorch tries.
+        (vec!["--hidden", "1000000"], "more than this machine's"),
     ] {
         let (ok, _, err) = bench_learner(&args);
         assert!(!ok && err.contains(want), "{args:?}: {err}");
