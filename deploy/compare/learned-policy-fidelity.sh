@@ -51,6 +51,15 @@ sim() {
 }
 substeps=$(sim substeps)
 iterations=$(sim solver_iterations)
+# A task that ships other relax iterations than rapier's 1 (the walker's 0) says so in its
+# results' directory name, as a candidate's STABILIZATION does: runs of the task before its
+# setting changed are never taken for its own.
+shipped_stabilization=$(sim stabilization_iterations)
+case "$shipped_stabilization" in
+    '' | *RAPIER_STABILIZATION_ITERATIONS | 1) ;;
+    [0-9]*) STABILIZATION_NAME=$shipped_stabilization ;;
+    *) echo "learned-policy-fidelity: cannot read $task's stabilization_iterations in envs/src/$task.rs; update this script" >&2; exit 1 ;;
+esac
 [ -n "$substeps" ] && [ -n "$iterations" ] \
     || { echo "learned-policy-fidelity: cannot read $task's SIM in envs/src/$task.rs; update this script" >&2; exit 1; }
 # A candidate setting: trained with these [env_options].
@@ -67,7 +76,8 @@ fi
 # Each setting in a directory of its own, named by it (OUT/TASK-SxI[-pD][-jF][-i][-zN]), so that the runs of
 # another setting, or of the task before its shipped setting changed, are never taken for this
 # one's.
-out=$out/$task-${substeps}x${iterations}${PREDICTION:+-p$PREDICTION}${LIMIT_HZ:+-j$LIMIT_HZ}${IMPLICIT_LIMITS:+-i}${STABILIZATION:+-z$STABILIZATION}
+STABILIZATION_NAME=${STABILIZATION:-${STABILIZATION_NAME:-}}
+out=$out/$task-${substeps}x${iterations}${PREDICTION:+-p$PREDICTION}${LIMIT_HZ:+-j$LIMIT_HZ}${IMPLICIT_LIMITS:+-i}${STABILIZATION_NAME:+-z$STABILIZATION_NAME}
 fine_steps=${FINE_STEPS:-10}
 fine_passes=${FINE_PASSES:-1}
 fine=$((fine_steps * substeps))

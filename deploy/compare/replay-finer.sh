@@ -4,8 +4,9 @@
 # trained on and integrated 10x finer (10x the rapier steps per control step; the same control
 # step, solver iterations, prediction distance and limit springs). The physics come from the
 # run's own record (`state.json`, `env`: the last stretch), so the replay is of the setting the
-# run trained at whatever the build's defaults are now (for the robots' physics keys only: a
-# run's other `[env_options]` are not passed). Writes OUT/coarseEPISODES.json and
+# run trained at whatever the build's defaults are now (the robots' physics keys: rapier
+# steps, solver passes and relax iterations, prediction distance, limit springs and their
+# integration; a run's other `[env_options]` are not passed). Writes OUT/coarseEPISODES.json and
 # OUT/fineEPISODES.json (`selkd eval --json`) and prints one table row: mean return and episode
 # length at each, the gap |coarse - fine| / |fine| and the gap's standard error (the two
 # replays' episodes are independent; a gap within about two of them may be the episodes'
@@ -43,6 +44,9 @@ print(f"substeps = {p['substeps'] * steps}")
 print(f"solver_iterations = {p['solver_iterations'] * passes}")
 for key in ("prediction_distance", "limit_frequency"):
     print(f"{key} = {p[key]}")
+# Records older than these keys were made with their first defaults.
+print(f"implicit_limits = {str(p.get('implicit_limits', False)).lower()}")
+print(f"stabilization_iterations = {p.get('stabilization_iterations', 1)}")
 EOF
 }
 fine_steps=${FINE_STEPS:-10}
