@@ -60,10 +60,10 @@ const CONTROL_DT: f32 = 0.008;
 /// than at 4 × 2 with the relax pass (35% / 26%). The setting it replaces, 4 × 4 with the relax
 /// pass, was 6% / 12% on the mean against its own 40 × 16 (seed 2 17% / 23% the other way) and
 /// ran at about MuJoCo's speed; this one runs at about 1.5× (`docs/results/fidelity.md`, "The
-/// walker ships 4 × 2 without the relax pass"). **Not settled**: the first SELKD policy trained
-/// here (the rapier evidence, 100k env steps) earns 60% / 42% more than at 40 × 8, leaning on
-/// the 2 ms steps themselves (10× the steps take it away, 4× the passes do not;
-/// `docs/results/evidence-rapier.md`).
+/// walker ships 4 × 2 without the relax pass"). **Not settled**: two of the first four
+/// policies trained here for the rapier evidence (SELKD seed 1, SAC seed 2, 100k env steps)
+/// earn 60% / 42% and 98% / 59% more than at 40 × 8, leaning on the 2 ms steps themselves
+/// (10× the steps take it away, 4× the passes do not; `docs/results/evidence-rapier.md`).
 ///
 /// Measured (4 seeds × 500 steps of saturated bang-bang torques, and 30 random episodes, per
 /// setting; rapier steps × iterations): every setting from 1×2 to 8×2 stayed finite and above
