@@ -56,8 +56,8 @@ iterations=$(sim solver_iterations)
 # setting changed are never taken for its own.
 shipped_stabilization=$(sim stabilization_iterations)
 case "$shipped_stabilization" in
-    '' | *RAPIER_STABILIZATION_ITERATIONS | 1) ;;
-    [0-9]*) STABILIZATION_NAME=$shipped_stabilization ;;
+    '' | *RAPIER_STABILIZATION_ITERATIONS | 1) shipped_stabilization="" ;;
+    [0-9]*) ;;
     *) echo "learned-policy-fidelity: cannot read $task's stabilization_iterations in envs/src/$task.rs; update this script" >&2; exit 1 ;;
 esac
 [ -n "$substeps" ] && [ -n "$iterations" ] \
@@ -76,8 +76,8 @@ fi
 # Each setting in a directory of its own, named by it (OUT/TASK-SxI[-pD][-jF][-i][-zN]), so that the runs of
 # another setting, or of the task before its shipped setting changed, are never taken for this
 # one's.
-STABILIZATION_NAME=${STABILIZATION:-${STABILIZATION_NAME:-}}
-out=$out/$task-${substeps}x${iterations}${PREDICTION:+-p$PREDICTION}${LIMIT_HZ:+-j$LIMIT_HZ}${IMPLICIT_LIMITS:+-i}${STABILIZATION_NAME:+-z$STABILIZATION_NAME}
+relax=${STABILIZATION:-$shipped_stabilization}
+out=$out/$task-${substeps}x${iterations}${PREDICTION:+-p$PREDICTION}${LIMIT_HZ:+-j$LIMIT_HZ}${IMPLICIT_LIMITS:+-i}${relax:+-z$relax}
 fine_steps=${FINE_STEPS:-10}
 fine_passes=${FINE_PASSES:-1}
 fine=$((fine_steps * substeps))
