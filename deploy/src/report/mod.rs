@@ -198,6 +198,53 @@ fn check_same_task(task: &str, runs: &[&Run]) -> Result<()> {
     Ok(())
 }
 
+/// Removes the figures and curve data of tasks the report no longer holds (their runs were moved
+/// out of its directory): a published report's `figures/` must not keep showing runs that are
+/// gone. Only the report's own kinds of file (`figN-TASK…` and `curves-TASK…`, as PNG, SVG or
+/// CSV); a task still here keeps every one of its files, those of another `--x` included.
+fn remove_stale_figures(figdir: &Path, tasks: &[&str]) -> Result<()> {
+    let slugs: Vec<String> = tasks.iter().map(|t| slug(t)).collect();
+    let listing =
+        std::fs::read_dir(figdir).with_context(|| format!("reading {}", figdir.display()))?;
+    for entry in listing {
+        let path = entry
+            .with_context(|| format!("reading {}", figdir.display()))?
+            .path();
+        let Some(name) = path.file_name().and_then(|n| n.to_str()) else {
+            continue;
+        };
+        let Some(task_part) = figure_task_part(name) else {
+            continue;
+        };
+        let current = slugs.iter().any(|s| {
+            task_part
+                .strip_prefix(s.as_str())
+                .is_some_and(|r| r.starts_with(['-', '.']))
+        });
+        if !current {
+            std::fs::remove_file(&path)
+                .with_context(|| format!("removing the stale {}", path.display()))?;
+        }
+    }
+    Ok(())
+}
+
+/// `name` without its `figN-` or `curves-` prefix, if it is one of the report's figure files.
+fn figure_task_part(name: &str) -> Option<&str> {
+    if ![".png", ".svg", ".csv"].iter().any(|e| name.ends_with(e)) {
+        return None;
+    }
+    if let Some(rest) = name.strip_prefix("curves-") {
+        return Some(rest);
+    }
+    let rest = name.strip_prefix("fig")?;
+    let number = rest.len() - rest.trim_start_matches(|c: char| c.is_ascii_digit()).len();
+    if number == 0 {
+        return None;
+    }
+    rest[number..].strip_prefix('-')
+}
+
 fn slug(s: &str) -> String {
     s.chars()
         .map(|c| {
@@ -557,6 +604,8 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
 
     let figdir = dir.join("figures");
     std::fs::create_dir_all(&figdir).with_context(|| format!("creating {}", figdir.display()))?;
+    let names: Vec<&str> = tasks.iter().map(|t| t.name.as_str()).collect();
+    remove_stale_figures(&figdir, &names)?;
     let mut md = String::new();
     let _ = writeln!(md, "# Experiment report: `{}`\n", dir.display());
     if let Some(expected) = expected_runs(dir)? {
@@ -707,6 +756,50 @@ pub fn run(args: &ReportArgs) -> Result<PathBuf> {
 mod tests {
     use super::runs::tests::{config, fake_run, METRICS};
     use super::*;
+
+    #[test]
+    fn figures_of_tasks_no_longer_in_the_report_are_removed_and_the_rest_kept() {
+        let d = std::env::temp_dir().join(format!("selkd-report-stale-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        let files = [
+            "fig3-walker2d.png",
+            "fig7-walker2d-rounds.svg",
+            "curves-walker2d.csv",
+            "fig3-ant.png",
+            "fig3-hopper.png",
+            "fig4-hopper-rounds.svg",
+            "curves-hopper-rounds.csv",
+            "fig3-ant-contacts.svg",
+            "curves-gymnasium-hopper-v5.csv",
+            "notes.md",
+            "figure-walker2d.png",
+            "fig-walker2d.png",
+        ];
+        for f in files {
+            std::fs::write(d.join(f), "x").unwrap();
+        }
+        remove_stale_figures(&d, &["hopper", "ant-contacts", "gymnasium:Hopper-v5"]).unwrap();
+        let mut left: Vec<String> = std::fs::read_dir(&d)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        left.sort();
+        assert_eq!(
+            left,
+            [
+                "curves-gymnasium-hopper-v5.csv",
+                "curves-hopper-rounds.csv",
+                "fig-walker2d.png",
+                "fig3-ant-contacts.svg",
+                "fig3-hopper.png",
+                "fig4-hopper-rounds.svg",
+                "figure-walker2d.png",
+                "notes.md",
+            ]
+        );
+        let _ = std::fs::remove_dir_all(&d);
+    }
 
     #[test]
     fn a_directory_without_a_finished_run_is_one_line_error() {
