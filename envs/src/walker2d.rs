@@ -20,15 +20,17 @@
 //! - Reset: the model pose (torso centre at z 1.25, joints at 0: the feet 4 cm above the floor,
 //!   as in MuJoCo) plus U(±5e-3) on every `qpos` and `qvel` entry.
 //!
-//! Differs: rapier's hard contacts and joint limits instead of MuJoCo's soft ones, and its
-//! integrator instead of MuJoCo's RK4 (see [`SIM`]). Random-policy episodes end about as fast
-//! as MuJoCo's (see the test `random_policy_episode_length_is_plausible`).
+//! Differs: rapier's hard contacts instead of MuJoCo's soft ones, joint limits as springs of
+//! our own, and rapier's integrator instead of MuJoCo's RK4 (see [`SIM`]). Random-policy
+//! episodes end about as fast as MuJoCo's (see the test
+//! `random_policy_episode_length_is_plausible`).
 //!
 //! Speed, random actions and resets on one thread, same sitting (`selkd bench env walker2d
 //! --steps 10000` against `deploy/gym_env_steps.py Walker2d-v5 10000`, Gymnasium 1.4, MuJoCo
-//! 4.0, RK4), two interleaved rounds on the 2-core `AMD EPYC` dev machine with two training
-//! runs on its cores: 6.6k and 7.1k env steps/s against MuJoCo's 4.3k and 4.7k (the 4 × 4 it
-//! replaced: 4.5k and 5.3k). `docs/performance.md` has the history.
+//! 4.0, RK4), four interleaved rounds on the 2-core `AMD EPYC` dev machine with two training
+//! runs on its cores: 2.4k, 2.1k, 2.0k, 2.2k env steps/s against MuJoCo's 5.4k, 6.2k, 4.8k,
+//! 5.5k, **0.36–0.44×** (the 4 × 2 it replaced: 8.5k, 7.1k, 8.0k, 6.1k). `docs/performance.md`
+//! has the history.
 //!
 //! A state that goes non-finite (rapier quarantines such bodies) terminates the episode with a
 //! zero observation: the env never emits NaN.
@@ -44,26 +46,30 @@ use rapier3d::prelude::PhysicsWorld;
 
 const GEAR: f32 = 100.0;
 const CONTROL_DT: f32 = 0.008;
-/// Physics integration per control step: 4 rapier steps of 2 ms (MuJoCo's own timestep) with
-/// 2 solver iterations each and **no stabilization (relax) iterations**
-/// ([`SimParams::stabilization_iterations`] 0; rapier's default is 1). 4 × 4 with the relax
-/// pass in the eighteenth session, 4 × 2 with it before.
+/// Physics integration per control step: 16 rapier steps of 0.5 ms with 2 solver iterations
+/// each and **no stabilization (relax) iterations** ([`SimParams::stabilization_iterations`] 0;
+/// rapier's default is 1). 4 × 2 without relax in the nineteenth session, 4 × 4 with the relax
+/// pass in the eighteenth, 4 × 2 with it before.
+///
+/// Why 0.5 ms steps: two of the first four policies trained at 4 × 2 without relax for the
+/// rapier evidence (SELKD seed 1, SAC seed 2, 100k env steps) earned 51% / 32% and 70% / 38%
+/// more return / length there than at the finest settings (the mean of 40 × 2 to 80 × 8, 50
+/// episodes), and replayed at other settings kept that excess at 1 ms steps (8 × 2: +45%,
+/// +16%; with implicit limit springs too) and more solver passes (4 × 8), and lost it at
+/// 0.5 ms (16 × 2: −10%, +10%): the exploit lives in steps of 1 ms and longer
+/// (`docs/results/fidelity-learned/walker2d-4x2-z0-evidence-grid/`). Our SAC's own policies
+/// trained 100k env steps at 16 × 2 keep their return / length against 160 × 8 within 10% /
+/// 10%, 11% / 15% and 14% / 8% (mean 12% / 11%; `docs/results/fidelity.md`, "The walker ships
+/// 16 × 2"). The scripted gait keeps distance / return / length within 2% / 1% / 4% of 160 × 2
+/// and 2% / 1% / 3% of 160 × 8 (seeds 0–9; `fidelity::walker2d_gait_converged` checks both
+/// references). The cost is speed: about 0.4× MuJoCo's Walker2d-v5 (4 × 2 ran at 1.4–1.5×);
+/// training barely notices (the learner sets the pace: a SAC update takes about 10 ms here,
+/// an env step 0.5 ms).
 ///
 /// Why no relax pass: with it, the walker's gait went further the more solver passes a control
 /// step had and did not settle (0.57 m at 4 × 4, 0.84 m at 80 × 32), so no setting had a
 /// converged reference to be measured against; without it the gait goes 0.58–0.60 m at every
-/// reference from 40 × 4 to 160 × 32 and 4 × 2 is within 12% / 7% / 2% (distance / return /
-/// length, seeds 0–9) of 10× the steps and 4× the passes (`fidelity::walker2d_gait_converged`).
-/// Our SAC's policies trained 100k env steps at this setting kept their return / length
-/// against 40 × 8 (same solver) within 11% / 10%, 12% / 20% (200 episodes; ± 5% / 6%) and
-/// 8% / 14%, mean 10% / 14%: each earns a little more at its setting than converged, far less
-/// than at 4 × 2 with the relax pass (35% / 26%). The setting it replaces, 4 × 4 with the relax
-/// pass, was 6% / 12% on the mean against its own 40 × 16 (seed 2 17% / 23% the other way) and
-/// ran at about MuJoCo's speed; this one runs at about 1.5× (`docs/results/fidelity.md`, "The
-/// walker ships 4 × 2 without the relax pass"). **Not settled**: two of the first four
-/// policies trained here for the rapier evidence (SELKD seed 1, SAC seed 2, 100k env steps)
-/// earn 60% / 42% and 98% / 59% more than at 40 × 8, leaning on the 2 ms steps themselves
-/// (10× the steps take it away, 4× the passes do not; `docs/results/evidence-rapier.md`).
+/// reference from 40 × 4 to 160 × 32.
 ///
 /// Measured (4 seeds × 500 steps of saturated bang-bang torques, and 30 random episodes, per
 /// setting; rapier steps × iterations): every setting from 1×2 to 8×2 stayed finite and above
@@ -83,10 +89,10 @@ const CONTROL_DT: f32 = 0.008;
 /// their return and episode length 10× finer within 3% and 9% on the mean (4–8% and 4–17% per
 /// seed): `docs/results/fidelity.md`. The scripted gait ([`crate::gaits::WALKER2D`], climbed
 /// at 4 × 4 with the relax pass) keeps its distance, return and length at this setting within
-/// 8%, 3% and 0% of 10× the steps (seeds 0–9).
+/// 2%, 1% and 4% of 10× the steps (seeds 0–9; at 4 × 2 without relax 8%, 3% and 0%).
 pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
-    substeps: 4,
+    substeps: 16,
     solver_iterations: 2,
     prediction_distance: RAPIER_PREDICTION_DISTANCE,
     limit_frequency: 16.0,
