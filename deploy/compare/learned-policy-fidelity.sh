@@ -26,9 +26,10 @@
 # in solver passes for every policy (docs/results/fidelity.md, "The walker at 100k, and the
 # second axis"); FINE_PASSES=4 from 4 passes is 16. Such a reference's replays are
 # seed-N.fineEPISODES-sFxP.json and its table tableEPISODES-sFxP.md, beside the plain ones.
-# JOBS runs at a time (default 1), one thread each. EPISODES (default 10) fresh episodes per
-# replay: where episodes end in a fall or at the time limit, 10 decide little (50 were used for
-# hopper, walker2d and humanoid). Changing it replays the finished seeds again.
+# JOBS seeds at a time (default 1), one thread each, each replayed as soon as it has trained.
+# EPISODES (default 10) fresh episodes per replay: where episodes end in a fall or at the time
+# limit, 10 decide little (50 were used for hopper, walker2d and humanoid). Changing it replays
+# the finished seeds again.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 task=${1:-halfcheetah}
@@ -126,11 +127,13 @@ finished() {
     python3 -c 'import json, sys; sys.exit(json.load(open(sys.argv[1]))["inserted"] < int(sys.argv[2]))' \
         "$out/seed-$1/checkpoints/final/state.json" "$steps" 2> /dev/null
 }
-for s in $(seq 1 "$seeds"); do
-    finished "$s" || echo "$s"
-done | xargs -r -P "$jobs" -I{} bash -c 'one {}'
-for s in $(seq 1 "$seeds"); do
-    [ -f "$out/seed-$s.fine$tag$ref.json" ] || echo "$s"
-done | xargs -r -P "$jobs" -I{} bash -c 'replay {}'
+# A seed trained (unless finished), then replayed (unless its reference replay exists): its gap
+# is known as soon as it can be, not after the last seed has trained.
+seed() {
+    finished "$1" || one "$1" || return 1
+    [ -f "$out/seed-$1.fine$tag$ref.json" ] || replay "$1"
+}
+export -f finished seed
+seq 1 "$seeds" | xargs -r -P "$jobs" -I{} bash -c 'seed {}'
 python3 deploy/compare/replay_gap.py seeds "$out" "$seeds" "$substeps x $iterations" \
     "$fine x $fine_iterations" "$tag" "$ref" | tee "$out/table$tag$ref.md"
