@@ -7,6 +7,8 @@
 #
 #   bash deploy/mutants-e2e.sh                                  # every file below (many hours)
 #   bash deploy/mutants-e2e.sh actor-worker/src/link.rs         # one file
+#   NO_BASELINE=1 bash deploy/mutants-e2e.sh learner/src/service.rs  # resumed: skip the stages'
+#                                                      # first run on the unmutated source
 #
 # It mutates files in place and refuses to start with uncommitted changes in them; don't edit
 # the checkout while it runs. Each caught mutant takes about a minute on 2 cores, one that
@@ -57,7 +59,7 @@ for f in "${files[@]}"; do
   # first of those stages: most mutants never get there (learner/src/service.rs: a mutant
   # caught in stage 1 took 110–176 s with this against 166–217 s before, a loaded machine).
   e2e="$build && $e2e"
-  python3 deploy/mutants_e2e.py "$list" "docs/mutants/$name.csv" \
+  python3 deploy/mutants_e2e.py "$list" "docs/mutants/$name.csv" ${NO_BASELINE:+--no-baseline} \
     --build "cargo test --release -p $pkg --no-run" --timeout 900 \
     --stage-timeout "$unit_timeout" \
     --stage "cargo test --release -p $pkg" \

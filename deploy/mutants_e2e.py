@@ -18,7 +18,8 @@ Resumable: mutants already in OUT are skipped. The file is restored after each m
 Ctrl-C or SIGTERM, which end the reading without a row for the mutant in hand and
 kill its stage); it refuses to start with uncommitted changes in the mutated files. Outcomes: caught
 (with the stage that caught it), missed, unviable (does not build), timeout (a stage ran past
---timeout; counts as caught). A build past --build-timeout stops the reading without a row: on a
+--timeout; counts as caught). Before the first mutant every stage runs once on the unmutated
+source and must pass (--no-baseline skips that): a test that fails anyway would catch them all. A build past --build-timeout stops the reading without a row: on a
 machine that busy the outcome would say nothing about the mutant.
 `deploy/mutants.sh` is the learner's in-package reading; docs/mutants.md records both.
 """
@@ -77,6 +78,9 @@ def main():
                         "--timeout): a stage of unit tests that runs in a second need not wait "
                         "15 minutes to call a mutant that hangs it a timeout")
     p.add_argument("--build-timeout", type=int, default=3600, help="seconds per build")
+    p.add_argument("--no-baseline", action="store_true",
+                   help="skip the stages' run on the unmutated source (a resumed reading whose "
+                        "stages passed there before)")
     a = p.parse_args()
     # Set here, not inherited: a shell starts background jobs with SIGINT ignored, and SIGTERM's
     # default would leave the mutant in the source and its stage running.
@@ -105,6 +109,8 @@ def main():
             w.writerow(["name", "outcome", "stage", "seconds"])
         todo = [m for m in mutants if m["name"] not in done]
         print(f"mutants_e2e: {len(todo)} of {len(mutants)} mutants to run", flush=True)
+        if todo and not a.no_baseline:
+            baseline(a)
         for i, m in enumerate(todo):
             try:
                 run_one(a, m, w, f, i, len(todo))
@@ -112,6 +118,22 @@ def main():
                 sys.exit(f"mutants_e2e: stopped by {e}; {m['file']} restored, {m['name']} not recorded; run again to continue")
     # Leave the binaries built from the unmutated source.
     sh(a.build, a.build_timeout)
+
+
+def baseline(a):
+    """Builds and runs every stage on the unmutated source first: a stage that fails there
+    would call every mutant reaching it caught."""
+    t0 = time.time()
+    if sh(a.build, a.build_timeout) != "ok":
+        sys.exit(f"mutants_e2e: the unmutated source does not build ({a.build}); fix that first")
+    for n, cmd in enumerate(a.stage, 1):
+        limit = a.stage_timeout[n - 1] if n <= len(a.stage_timeout) else a.timeout
+        r = sh(cmd, limit)
+        if r != "ok":
+            sys.exit(f"mutants_e2e: stage {n} fails ({r}) on the unmutated source, so it would "
+                     f"catch every mutant: {cmd}")
+    print(f"mutants_e2e: every stage passes on the unmutated source ({round(time.time() - t0)} s)",
+          flush=True)
 
 
 def run_one(a, m, w, f, i, total):
