@@ -526,3 +526,48 @@ fn a_worker_that_keeps_dying_ends_the_run_with_its_reason_and_a_checkpoint() {
     assert!(worker_pids(&run_id, 1).is_empty(), "worker 1 left running");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A learner whose workers have not come (or are between episodes) waits on the wake event
+/// rather than polling: over 3 s without a worker it uses well under a core. Polling without the
+/// wait spins a core for as long as the run waits, which nothing else here would notice.
+#[test]
+fn a_learner_waiting_for_its_workers_sleeps_rather_than_spinning_a_core() {
+    use std::io::BufRead;
+    let dir = temp_dir("idle-learner");
+    let config = dir.join("tiny.toml");
+    std::fs::write(&config, TINY).unwrap();
+    let mut c = std::process::Command::new(bin("learner"));
+    c.arg("--config")
+        .arg(&config)
+        .arg("--run-dir")
+        .arg(dir.join("run"))
+        .args(["--run-id", &format!("idle{}", std::process::id())]);
+    let mut child = spawn(c);
+    // The first progress line comes from the run's loop: start-up (libtorch, the networks) is over.
+    let mut stdout = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut line = String::new();
+    while !line.starts_with("PROGRESS") {
+        line.clear();
+        let n = stdout.read_line(&mut line).unwrap();
+        assert!(n > 0, "the learner ended before its loop: {:?}", child.wait());
+    }
+    // Keep reading its progress lines, so that a full pipe never blocks it.
+    std::thread::spawn(move || for _ in stdout.lines() {});
+    let cpu = || {
+        let stat = std::fs::read_to_string(format!("/proc/{}/stat", child.id())).unwrap();
+        // utime and stime, fields 14 and 15, after the command's closing parenthesis.
+        let fields: Vec<&str> = stat[stat.rfind(')').unwrap() + 2..].split(' ').collect();
+        let ticks: f64 = fields[11].parse::<f64>().unwrap() + fields[12].parse::<f64>().unwrap();
+        ticks / unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64
+    };
+    let (cpu0, t0) = (cpu(), Instant::now());
+    std::thread::sleep(Duration::from_secs(3));
+    let (used, wall) = (cpu() - cpu0, t0.elapsed().as_secs_f64());
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let _ = child.wait();
+    assert!(
+        used < 0.25 * wall,
+        "a learner with no workers used {used:.2} s of CPU in {wall:.2} s: it polls instead of waiting"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
