@@ -549,7 +549,11 @@ fn a_learner_waiting_for_its_workers_sleeps_rather_than_spinning_a_core() {
     while !line.starts_with("PROGRESS") {
         line.clear();
         let n = stdout.read_line(&mut line).unwrap();
-        assert!(n > 0, "the learner ended before its loop: {:?}", child.wait());
+        assert!(
+            n > 0,
+            "the learner ended before its loop: {:?}",
+            child.wait()
+        );
     }
     // Keep reading its progress lines, so that a full pipe never blocks it.
     std::thread::spawn(move || for _ in stdout.lines() {});
