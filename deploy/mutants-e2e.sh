@@ -65,5 +65,6 @@ for f in "${files[@]}"; do
     --stage "cargo test --release -p $pkg" \
     --stage "$e2e --test data_path" \
     --stage "$e2e --test faults --test recovery --test examples -- --test-threads 1" \
-    --stage "$e2e --test gymnasium -- an_exception_in_step"
+    --stage "$e2e --test gymnasium -- an_exception_in_step" \
+    --stage "$e2e --test hardening --test tensorboard -- --test-threads 1"
 done
