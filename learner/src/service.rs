@@ -440,7 +440,7 @@ impl Learner {
             self.periodic_checkpoint()?;
             let interrupted = stop.load(Ordering::Relaxed);
             let done = self.finished(&mut pass.finishing_since) || interrupted;
-            if self.cfg.run.mode == Mode::Async && pass.last_gone_check.elapsed() >= GONE_CHECK {
+            if gone_check_due(self.cfg.run.mode, pass.last_gone_check) {
                 pass.last_gone_check = Instant::now();
                 self.workers.take_back_grants_of_gone_workers(run_id);
             }
@@ -1143,9 +1143,27 @@ fn cpu_has_bf16() -> bool {
     }
 }
 
+/// Whether to look for gone workers now: async only (a sync run grants nothing to take back),
+/// at most every `GONE_CHECK` (the look lists the live iceoryx2 nodes).
+fn gone_check_due(mode: Mode, last: Instant) -> bool {
+    mode == Mode::Async && last.elapsed() >= GONE_CHECK
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `workers.rs`' tests check the look itself; the run's loop asks this first, and an async
+    /// run that never asked would keep a dead worker's grant (the others would then wait out
+    /// its restart's back-off at the end of the budget).
+    #[test]
+    fn only_an_async_run_looks_for_gone_workers_and_at_most_every_gone_check() {
+        let long_ago = Instant::now() - GONE_CHECK - Duration::from_millis(1);
+        assert!(gone_check_due(Mode::Async, long_ago));
+        assert!(!gone_check_due(Mode::Async, Instant::now()));
+        assert!(!gone_check_due(Mode::Sync, long_ago));
+        assert!(!gone_check_due(Mode::Sync, Instant::now()));
+    }
 
     fn learner(mode: Mode) -> (Learner, PathBuf) {
         // A directory per call: the tests run in parallel.
