@@ -19,8 +19,9 @@ Ctrl-C or SIGTERM, which end the reading without a row for the mutant in hand an
 kill its stage); it refuses to start with uncommitted changes in the mutated files. Outcomes: caught
 (with the stage that caught it), missed, unviable (does not build), timeout (a stage ran past
 --timeout; counts as caught). Before the first mutant every stage runs once on the unmutated
-source and must pass (--no-baseline skips that): a test that fails anyway would catch them all. A build past --build-timeout stops the reading without a row: on a
-machine that busy the outcome would say nothing about the mutant.
+source and must pass (--no-baseline skips that): a test that fails anyway would catch them all.
+A build past --build-timeout stops the reading without a row: on a machine that busy the
+outcome would say nothing about the mutant.
 `deploy/mutants.sh` is the learner's in-package reading; docs/mutants.md records both.
 """
 import argparse
