@@ -127,21 +127,19 @@ def baseline(a):
     t0 = time.time()
     if sh(a.build, a.build_timeout) != "ok":
         sys.exit(f"mutants_e2e: the unmutated source does not build ({a.build}); fix that first")
-    for n, cmd in enumerate(a.stage, 1):
-        limit = a.stage_timeout[n - 1] if n <= len(a.stage_timeout) else a.timeout
-        r = sh(cmd, limit)
-        if r != "ok":
-            sys.exit(f"mutants_e2e: stage {n} fails ({r}) on the unmutated source, so it would "
-                     f"catch every mutant: {cmd}")
+    failed = run_stages(a)
+    if failed:
+        n, r = failed
+        sys.exit(f"mutants_e2e: stage {n} fails ({r}) on the unmutated source, so it would "
+                 f"catch every mutant: {a.stage[n - 1]}")
     print(f"mutants_e2e: every stage passes on the unmutated source ({round(time.time() - t0)} s)",
           flush=True)
 
 
-def run_one(a, m, w, f, i, total):
-    """Applies mutant `m`, builds and runs the stages, restores the file and writes its row (no
-    row if the reading is stopped midway)."""
-    t0 = time.time()
-    # The stages' temporary files in a directory of the mutant's own, removed after it: a test
+def run_stages(a):
+    """Runs the stages in order until one does not pass: (its number, "fail" or "timeout"), or
+    None when every one passes."""
+    # The stages' temporary files in a directory of their own, removed after them: a test
     # killed at its timeout leaves its run directory behind, and a mutant that makes the
     # learner log without end (`next_to_log` → `Some((0, 0))`) wrote 15 GB a test into /tmp in
     # 15 minutes, three times over, until the disk was full.
@@ -149,6 +147,21 @@ def run_one(a, m, w, f, i, total):
     shutil.rmtree(tmp, ignore_errors=True)
     os.makedirs(tmp)
     env = dict(os.environ, TMPDIR=tmp)
+    try:
+        for n, cmd in enumerate(a.stage, 1):
+            limit = a.stage_timeout[n - 1] if n <= len(a.stage_timeout) else a.timeout
+            r = sh(cmd, limit, env)
+            if r != "ok":
+                return n, r
+        return None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def run_one(a, m, w, f, i, total):
+    """Applies mutant `m`, builds and runs the stages, restores the file and writes its row (no
+    row if the reading is stopped midway)."""
+    t0 = time.time()
     try:
         subprocess.run(["patch", "-s", "-p0", m["file"]], input=m["diff"], text=True, check=True)
         outcome, stage = "unviable", ""
@@ -160,15 +173,12 @@ def run_one(a, m, w, f, i, total):
                      "the machine is too busy (or raise --build-timeout); run again to continue")
         if built == "ok":
             outcome = "missed"
-            for n, cmd in enumerate(a.stage, 1):
-                limit = a.stage_timeout[n - 1] if n <= len(a.stage_timeout) else a.timeout
-                r = sh(cmd, limit, env)
-                if r != "ok":
-                    outcome, stage = ("caught" if r == "fail" else "timeout"), str(n)
-                    break
+            failed = run_stages(a)
+            if failed:
+                n, r = failed
+                outcome, stage = ("caught" if r == "fail" else "timeout"), str(n)
     finally:
         subprocess.run(["git", "checkout", "--", m["file"]], check=True)
-        shutil.rmtree(tmp, ignore_errors=True)
     secs = round(time.time() - t0)
     w.writerow([m["name"], outcome, stage, secs])
     f.flush()
