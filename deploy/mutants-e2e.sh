@@ -8,11 +8,13 @@
 #   bash deploy/mutants-e2e.sh                                  # every file below (many hours)
 #   bash deploy/mutants-e2e.sh actor-worker/src/link.rs         # one file
 #   NO_BASELINE=1 bash deploy/mutants-e2e.sh learner/src/service.rs  # resumed: skip the stages'
-#                                                      # first run on the unmutated source
+#                                   # first run on the unmutated source (its kept times still
+#                                   # set the stages' limits: 5 × each, 120 s at least)
 #
 # It mutates files in place and refuses to start with uncommitted changes in them; don't edit
 # the checkout while it runs. Each caught mutant takes about a minute on 2 cores, one that
-# reaches the last stage four to five.
+# reaches the last stage four to five; one that hangs a stage runs to 5 × the stage's baseline
+# time (--timeout 900 and the stage-1 limit below when there is none).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"

@@ -20,6 +20,10 @@ kill its stage); it refuses to start with uncommitted changes in the mutated fil
 (with the stage that caught it), missed, unviable (does not build), timeout (a stage ran past
 --timeout; counts as caught). Before the first mutant every stage runs once on the unmutated
 source and must pass (--no-baseline skips that): a test that fails anyway would catch them all.
+Its times set each stage's limit for the mutants, as cargo-mutants does: --timeout-multiplier
+times the baseline's, at least --min-timeout, at most --timeout/--stage-timeout; a mutant that
+hangs a stage then costs minutes, not the fixed 15. They are kept beside the build (target/
+mutants-e2e/<OUT's name>.baseline.json), so a reading resumed with --no-baseline uses them too.
 A build past --build-timeout stops the reading without a row: on a machine that busy the
 outcome would say nothing about the mutant.
 `deploy/mutants.sh` is the learner's in-package reading; docs/mutants.md records both.
@@ -79,6 +83,10 @@ def main():
                         "--timeout): a stage of unit tests that runs in a second need not wait "
                         "15 minutes to call a mutant that hangs it a timeout")
     p.add_argument("--build-timeout", type=int, default=3600, help="seconds per build")
+    p.add_argument("--timeout-multiplier", type=float, default=5.0,
+                   help="a stage's limit is this times its baseline time (when one is known)")
+    p.add_argument("--min-timeout", type=int, default=120,
+                   help="seconds: the least limit a baseline time can give a stage")
     p.add_argument("--no-baseline", action="store_true",
                    help="skip the stages' run on the unmutated source (a resumed reading whose "
                         "stages passed there before)")
@@ -110,35 +118,62 @@ def main():
             w.writerow(["name", "outcome", "stage", "seconds"])
         todo = [m for m in mutants if m["name"] not in done]
         print(f"mutants_e2e: {len(todo)} of {len(mutants)} mutants to run", flush=True)
+        times_file = os.path.join("target", "mutants-e2e", os.path.basename(a.out) + ".baseline.json")
+        times = None
         if todo and not a.no_baseline:
-            baseline(a)
+            times = baseline(a)
+            with open(times_file, "w") as t:
+                json.dump({"stages": a.stage, "seconds": times}, t)
+        elif todo and os.path.exists(times_file):
+            kept = json.load(open(times_file))
+            # Times of other stages say nothing about these.
+            if kept["stages"] == a.stage:
+                times = kept["seconds"]
+        limits = stage_limits(a, times)
+        print(f"mutants_e2e: stage limits {limits} s"
+              + (f" ({a.timeout_multiplier:g} × the baseline's {[round(t) for t in times]} s)" if times
+                 else " (no baseline times: the fixed limits)"), flush=True)
         for i, m in enumerate(todo):
             try:
-                run_one(a, m, w, f, i, len(todo))
+                run_one(a, m, w, f, i, len(todo), limits)
             except Stopped as e:
                 sys.exit(f"mutants_e2e: stopped by {e}; {m['file']} restored, {m['name']} not recorded; run again to continue")
     # Leave the binaries built from the unmutated source.
     sh(a.build, a.build_timeout)
 
 
+def fixed_limits(a):
+    return [a.stage_timeout[n] if n < len(a.stage_timeout) else a.timeout for n in range(len(a.stage))]
+
+
+def stage_limits(a, times):
+    """Each stage's limit in seconds: the fixed one, or, with the baseline's times, the
+    multiplier times the stage's, between --min-timeout and the fixed one."""
+    fixed = fixed_limits(a)
+    if not times:
+        return fixed
+    return [min(f, max(a.min_timeout, round(a.timeout_multiplier * t))) for f, t in zip(fixed, times)]
+
+
 def baseline(a):
     """Builds and runs every stage on the unmutated source first: a stage that fails there
-    would call every mutant reaching it caught."""
+    would call every mutant reaching it caught. Returns each stage's seconds."""
     t0 = time.time()
     if sh(a.build, a.build_timeout) != "ok":
         sys.exit(f"mutants_e2e: the unmutated source does not build ({a.build}); fix that first")
-    failed = run_stages(a)
+    failed, times = run_stages(a, fixed_limits(a))
     if failed:
         n, r = failed
         sys.exit(f"mutants_e2e: stage {n} fails ({r}) on the unmutated source, so it would "
                  f"catch every mutant: {a.stage[n - 1]}")
     print(f"mutants_e2e: every stage passes on the unmutated source ({round(time.time() - t0)} s)",
           flush=True)
+    return times
 
 
-def run_stages(a):
-    """Runs the stages in order until one does not pass: (its number, "fail" or "timeout"), or
-    None when every one passes."""
+def run_stages(a, limits):
+    """Runs the stages in order until one does not pass. Returns (its number, "fail" or
+    "timeout"), or None when every one passes, and the seconds of the stages run."""
     # The stages' temporary files in a directory of their own, removed after them: a test
     # killed at its timeout leaves its run directory behind, and a mutant that makes the
     # learner log without end (`next_to_log` → `Some((0, 0))`) wrote 15 GB a test into /tmp in
@@ -147,18 +182,20 @@ def run_stages(a):
     shutil.rmtree(tmp, ignore_errors=True)
     os.makedirs(tmp)
     env = dict(os.environ, TMPDIR=tmp)
+    times = []
     try:
-        for n, cmd in enumerate(a.stage, 1):
-            limit = a.stage_timeout[n - 1] if n <= len(a.stage_timeout) else a.timeout
+        for n, (cmd, limit) in enumerate(zip(a.stage, limits), 1):
+            t0 = time.time()
             r = sh(cmd, limit, env)
+            times.append(time.time() - t0)
             if r != "ok":
-                return n, r
-        return None
+                return (n, r), times
+        return None, times
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def run_one(a, m, w, f, i, total):
+def run_one(a, m, w, f, i, total, limits):
     """Applies mutant `m`, builds and runs the stages, restores the file and writes its row (no
     row if the reading is stopped midway)."""
     t0 = time.time()
@@ -173,7 +210,7 @@ def run_one(a, m, w, f, i, total):
                      "the machine is too busy (or raise --build-timeout); run again to continue")
         if built == "ok":
             outcome = "missed"
-            failed = run_stages(a)
+            failed, _ = run_stages(a, limits)
             if failed:
                 n, r = failed
                 outcome, stage = ("caught" if r == "fail" else "timeout"), str(n)
