@@ -1133,14 +1133,21 @@ fn cpu_has_bf16() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         // AMX's feature test is not stable in Rust yet: read the kernel's flags for it.
-        std::arch::is_x86_feature_detected!("avx512bf16")
-            || std::fs::read_to_string("/proc/cpuinfo")
-                .is_ok_and(|t| t.split_whitespace().any(|f| f == "amx_bf16"))
+        bf16_native(
+            std::arch::is_x86_feature_detected!("avx512bf16"),
+            &std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default(),
+        )
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
         true
     }
+}
+
+/// AVX-512 BF16 as the CPU reports it, or AMX's bf16 tiles as the kernel's flags (`cpuinfo`) do.
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+fn bf16_native(avx512bf16: bool, cpuinfo: &str) -> bool {
+    avx512bf16 || cpuinfo.split_whitespace().any(|f| f == "amx_bf16")
 }
 
 /// Whether to look for gone workers now: async only (a sync run grants nothing to take back),
@@ -1546,6 +1553,73 @@ mod tests {
             Outputs::new(&dir, file("m4"), 25, 0, None).next_checkpoint,
             0
         );
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    /// The test above checks the flags on this CPU only (one with AVX-512 BF16 here): the
+    /// kernel's AMX flag, read by hand, on CPUs described in text.
+    #[test]
+    fn amx_bf16_in_the_kernels_flags_counts_as_native_bf16() {
+        let amx = "model name\t: Xeon\nflags\t\t: fpu avx2 amx_tile amx_bf16 amx_int8\n";
+        let avx2 = "model name\t: EPYC\nflags\t\t: fpu avx2 avx512f amx_bf16x\n";
+        assert!(bf16_native(false, amx));
+        assert!(
+            !bf16_native(false, avx2),
+            "no amx_bf16 flag, only a longer name"
+        );
+        assert!(bf16_native(true, avx2), "AVX-512 BF16");
+        assert!(!bf16_native(false, ""), "no /proc/cpuinfo");
+    }
+
+    /// An epoch's row: the rates over the run's wall clock, an actor's return and success only
+    /// from an evaluation of this epoch or later, per-actor statistics only once a round has
+    /// them (expectations by hand).
+    #[test]
+    fn an_epochs_row_holds_the_runs_rates_and_only_this_epochs_evaluations() {
+        let (mut l, dir) = learner(Mode::Async);
+        let ours = l.handshake;
+        let before = l.metrics_row(1, 1000);
+        assert!(
+            before
+                .alpha
+                .iter()
+                .chain(&before.kl_to_best)
+                .all(|v| v.is_nan()),
+            "{before:?}"
+        );
+        assert!(before.eval_return.iter().all(|v| v.is_nan()));
+        l.out.wall_offset = 50.0;
+        l.selkd.critic_updates = 600;
+        l.stats.inserted = 300;
+        l.stats.last_round.alpha = vec![0.2, 0.3];
+        l.stats.last_round.kl_to_best = vec![0.0, 1.5];
+        let eval = |worker, epoch, mean_return, success_rate| proto::Report {
+            kind: ReportKind::Evaluation,
+            epoch,
+            mean_return,
+            success_rate,
+            ..proto::Report::hello(ours, worker, 0, 7)
+        };
+        l.on_report(&eval(0, 2, -150.0, 0.25));
+        l.on_report(&eval(1, 1, 80.0, 0.5));
+        let row = l.metrics_row(2, 2000);
+        assert!((50.0..60.0).contains(&row.wall_s), "{}", row.wall_s);
+        assert_eq!(row.updates_per_s, 600.0 / row.wall_s);
+        assert_eq!(row.env_steps_per_s, 300.0 / row.wall_s);
+        assert!(
+            (11.0..12.0).contains(&row.updates_per_s),
+            "{}",
+            row.updates_per_s
+        );
+        assert_eq!(row.alpha, vec![0.2, 0.3]);
+        assert_eq!(row.kl_to_best, vec![0.0, 1.5]);
+        // Actor 1's latest evaluation is of epoch 1: none for epoch 2.
+        assert_eq!(row.eval_return[0], -150.0);
+        assert!(row.eval_return[1].is_nan(), "{:?}", row.eval_return);
+        assert_eq!(row.eval_success[0], 0.25);
+        assert!(row.eval_success[1].is_nan(), "{:?}", row.eval_success);
+        let first = l.metrics_row(1, 1000);
+        assert_eq!((first.eval_return[1], first.eval_success[1]), (80.0, 0.5));
         let _ = std::fs::remove_dir_all(dir);
     }
 
