@@ -1623,6 +1623,41 @@ mod tests {
         let _ = std::fs::remove_dir_all(dir);
     }
 
+    /// A run ends at its budget once the final evaluations are in, or 120 s after it reached
+    /// the budget without them (a worker that died at the end must not hang the run); that wait
+    /// starts at the budget, once.
+    #[test]
+    fn a_run_ends_at_its_budget_with_its_evaluations_or_120_s_after_without_them() {
+        let (mut l, dir) = learner(Mode::Async);
+        let total = l.cfg.run.total_env_steps;
+        let ago = |s| {
+            Instant::now()
+                .checked_sub(Duration::from_secs(s))
+                .expect("uptime")
+        };
+        l.epochs.eval_epoch = 1;
+        assert!(!l.epochs.evals_in(), "both actors owe epoch 1");
+        let mut since = None;
+        l.stats.inserted = total - 1;
+        assert!(!l.finished(&mut since));
+        assert_eq!(since, None, "the wait starts at the budget, not before");
+        l.stats.inserted = total;
+        assert!(!l.finished(&mut since), "evaluations owed");
+        let started = since.expect("the wait starts at the budget");
+        assert!(!l.finished(&mut since));
+        assert_eq!(since, Some(started), "started once, not again each pass");
+        assert!(
+            !l.finished(&mut Some(ago(100))),
+            "still waiting after 100 s"
+        );
+        assert!(l.finished(&mut Some(ago(121))), "gave up after 120 s");
+        assert!(l.epochs.evaluation(0, 1, f64::NAN) && l.epochs.evaluation(1, 1, f64::NAN));
+        assert!(l.finished(&mut Some(Instant::now())), "evaluations in");
+        l.stats.inserted = total - 1;
+        assert!(!l.finished(&mut Some(ago(121))), "below the budget");
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
     #[test]
     fn the_wall_clock_continues_from_the_resumed_runs() {
         let (mut l, dir) = learner(Mode::Sync);
