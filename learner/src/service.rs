@@ -1658,6 +1658,48 @@ mod tests {
         let _ = std::fs::remove_dir_all(dir);
     }
 
+    /// The progress line goes out once a second and the live scalars every 5 s, both at the
+    /// end too (the times each was last written show it).
+    #[test]
+    fn progress_goes_out_every_second_live_scalars_every_5_s_and_both_at_the_end() {
+        let (mut l, dir) = learner(Mode::Async);
+        let ago = |s| {
+            Instant::now()
+                .checked_sub(Duration::from_secs(s))
+                .expect("uptime")
+        };
+        let mut pass = Pass::new(0, 0);
+        let just_now = Instant::now();
+        std::thread::sleep(Duration::from_millis(2));
+        let written = |pass: &mut Pass, l: &mut Learner, progress, live, done| {
+            (pass.last_progress, pass.last_live) = (progress, live);
+            l.report_progress(pass, done);
+            (pass.last_progress != progress, pass.last_live != live)
+        };
+        assert_eq!(
+            written(&mut pass, &mut l, just_now, just_now, false),
+            (false, false)
+        );
+        assert_eq!(
+            written(&mut pass, &mut l, ago(2), ago(2), false),
+            (true, false)
+        );
+        assert_eq!(
+            written(&mut pass, &mut l, ago(2), ago(6), false),
+            (true, true)
+        );
+        assert_eq!(
+            written(&mut pass, &mut l, just_now, ago(6), false),
+            (false, false)
+        );
+        assert_eq!(
+            written(&mut pass, &mut l, just_now, just_now, true),
+            (true, true),
+            "the end"
+        );
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
     #[test]
     fn the_wall_clock_continues_from_the_resumed_runs() {
         let (mut l, dir) = learner(Mode::Sync);
