@@ -1245,6 +1245,137 @@ mod tests {
         }
     }
 
+    /// What `f` logs, as text: a subscriber of this thread only, so tests running beside it
+    /// add nothing.
+    fn logged(f: impl FnOnce()) -> String {
+        #[derive(Clone, Default)]
+        struct Text(std::sync::Arc<std::sync::Mutex<Vec<u8>>>);
+        impl std::io::Write for Text {
+            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+                self.0.lock().unwrap().extend_from_slice(b);
+                Ok(b.len())
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        let text = Text::default();
+        let writer = text.clone();
+        let subscriber = tracing_subscriber::fmt()
+            .with_writer(move || writer.clone())
+            .with_ansi(false)
+            .finish();
+        tracing::subscriber::with_default(subscriber, f);
+        let bytes = text.0.lock().unwrap().clone();
+        String::from_utf8(bytes).unwrap()
+    }
+
+    /// A worker that keeps sending bad transitions must not flood the log: a malformed one is
+    /// reported once, a non-finite one at the 1st, 2nd, 4th, 8th, … (the counts go on).
+    #[test]
+    fn bad_transitions_are_logged_once_or_at_powers_of_two() {
+        let (mut l, dir) = learner(Mode::Async);
+        let good = [0.1f32, 0.2, 0.3, 0.5, -1.0, 0.4, 0.5, 0.6, 0.0, 0.0];
+        let mut nan = good;
+        nan[4] = f32::NAN;
+        let log = logged(|| {
+            for _ in 0..3 {
+                l.on_transition(header(0), &good[..9]);
+            }
+            for _ in 0..9 {
+                l.on_transition(header(1), &nan);
+            }
+        });
+        let count = |what: &str| log.lines().filter(|line| line.contains(what)).count();
+        assert_eq!(count("does not fit the run"), 1, "{log}");
+        assert_eq!(
+            count("NaN or infinite"),
+            4,
+            "the 1st, 2nd, 4th and 8th: {log}"
+        );
+        assert_eq!(
+            (
+                l.stats.intake.dropped_malformed,
+                l.stats.intake.dropped_nonfinite
+            ),
+            (3, 9)
+        );
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    /// A worker's steps are checked against the record a restart continues from: the next step,
+    /// or step 0 of the next episode after a terminated or truncated one; anything else is
+    /// logged as a gap.
+    #[test]
+    fn a_step_that_does_not_follow_the_record_is_logged_and_one_that_does_is_not() {
+        let (mut l, dir) = learner(Mode::Async);
+        // (episode, step, terminated, truncated): in order, across both kinds of episode end.
+        let in_order = [
+            (0, 0, 0.0, 0.0),
+            (0, 1, 1.0, 0.0),
+            (1, 0, 0.0, 0.0),
+            (1, 1, 0.0, 1.0),
+            (2, 0, 0.0, 0.0),
+        ];
+        let step = |l: &mut Learner, (episode, step, terminated, truncated)| {
+            let row = [
+                0.1f32, 0.2, 0.3, 0.5, -1.0, 0.4, 0.5, 0.6, terminated, truncated,
+            ];
+            l.on_transition(
+                TransitionHeader {
+                    episode,
+                    step,
+                    ..header(0)
+                },
+                &row,
+            );
+        };
+        let log = logged(|| in_order.into_iter().for_each(|s| step(&mut l, s)));
+        assert!(!log.contains("not the next one on record"), "{log}");
+        let log = logged(|| step(&mut l, (2, 5, 0.0, 0.0)));
+        assert_eq!(
+            log.matches("not the next one on record").count(),
+            1,
+            "{log}"
+        );
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    /// The policy lag counts the steps a policy chose, by how many weight versions it trailed;
+    /// warm-up steps (policy version 0: uniform actions) have none.
+    #[test]
+    fn policy_lag_counts_policy_steps_only() {
+        let (mut l, dir) = learner(Mode::Async);
+        l.stats.weights_version = 5;
+        let row = [0.1f32, 0.2, 0.3, 0.5, -1.0, 0.4, 0.5, 0.6, 0.0, 0.0];
+        let warmup = TransitionHeader {
+            policy_version: 0,
+            ..header(0)
+        };
+        l.on_transition(warmup, &row);
+        assert_eq!(
+            (l.stats.intake.lag_max, l.stats.intake.policy_lag_mean()),
+            (0, 0.0)
+        );
+        let policy = TransitionHeader {
+            policy_version: 3,
+            step: 1,
+            ..header(0)
+        };
+        l.on_transition(policy, &row);
+        let policy = TransitionHeader {
+            policy_version: 5,
+            step: 2,
+            ..header(0)
+        };
+        l.on_transition(policy, &row);
+        assert_eq!(
+            (l.stats.intake.lag_max, l.stats.intake.policy_lag_mean()),
+            (2, 1.0)
+        );
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
     #[test]
     fn only_the_newest_periodic_checkpoints_are_kept() {
         let dir = std::env::temp_dir().join(format!("selkd-prune-{}", std::process::id()));
