@@ -137,3 +137,71 @@ fn workers_started_by_hand_exit_when_their_learner_is_gone() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The learner broadcasts the actors' ranking (each one's Monte-Carlo score and the best one) for
+/// any program on the host: an observer subscribed by hand (a fourth terminal) sees it change as
+/// the run goes, and the last one it sees is the final checkpoint's.
+#[test]
+fn an_observer_on_the_host_reads_the_ranking_the_learner_broadcasts() {
+    use selkd_protocol::{services, Services};
+    let dir = temp_dir("by-hand-ranking");
+    let config = dir.join("tiny.toml");
+    std::fs::write(&config, TINY).unwrap();
+    let run_id = format!("ranking{}", std::process::id());
+    let run_dir = dir.join("run");
+    let node = services::node(&format!("observer{}", std::process::id())).unwrap();
+    let observer = services::ranking(&node, &Services::new(&run_id))
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let mut learner = Command::new(bin("learner"));
+    learner
+        .arg("--config")
+        .arg(&config)
+        .args(["--set", "run.total_env_steps=1000", "--run-dir"])
+        .arg(&run_dir)
+        .args(["--run-id", &run_id]);
+    let mut learner = spawn(learner);
+    let workers: Vec<_> = (0..2)
+        .map(|w| {
+            let mut c = Command::new(bin("actor-worker"));
+            c.args(["--run-id", &run_id, "--worker", &w.to_string()])
+                .args(["--env", "pendulum"]);
+            spawn(c)
+        })
+        .collect();
+    // (version, best, scores) of each ranking seen, polled faster than the learner's passes.
+    let mut seen: Vec<(u64, u32, [f64; 2])> = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(300);
+    while learner.try_wait().unwrap().is_none() {
+        assert!(Instant::now() < deadline, "the run did not finish in 300 s");
+        while let Some(r) = observer.receive().unwrap() {
+            assert_eq!(r.actors, 2);
+            seen.push((r.version, r.best, [r.scores[0], r.scores[1]]));
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(learner.wait().unwrap().success());
+    for w in workers {
+        assert!(w.wait_with_output().unwrap().status.success());
+    }
+    assert!(
+        seen.windows(2).all(|p| p[0].0 < p[1].0),
+        "each ranking once, in order: {seen:?}"
+    );
+    let &(_, best, scores) = seen.last().expect("no ranking seen");
+    // The final checkpoint's ranking: the latest evaluation's return per actor (both actors are
+    // evaluated at each epoch's end), the best its argmax, ties to the lower index.
+    let state: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(run_dir.join("checkpoints/final/state.json")).unwrap(),
+    )
+    .unwrap();
+    let want: Vec<f64> = (0..2)
+        .map(|i| state["ranking"]["evaluation"][i].as_f64().unwrap())
+        .collect();
+    assert_eq!(scores.to_vec(), want, "{seen:?}");
+    assert_eq!(best, if want[1] > want[0] { 1 } else { 0 }, "{seen:?}");
+    assert!(seen.len() >= 2, "only the final ranking was seen: {seen:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
