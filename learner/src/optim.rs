@@ -484,7 +484,13 @@ mod tests {
                 })
                 .collect()
         };
-        let (whole, split) = (make(), make());
+        // A copy, not a second draw: another test may draw from libtorch's global generator
+        // (or reseed it) between two draws of this thread.
+        let whole = make();
+        let split: Vec<Tensor> = whole
+            .iter()
+            .map(|t| t.detach().copy().set_requires_grad(true))
+            .collect();
         let refs = |v: &[Tensor]| -> Vec<Tensor> { v.iter().map(|t| t.shallow_clone()).collect() };
         let (w, s) = (refs(&whole), refs(&split));
         let (w, s): (Vec<&Tensor>, Vec<&Tensor>) = (w.iter().collect(), s.iter().collect());
@@ -536,12 +542,13 @@ mod tests {
         };
         // (parts, whether the targets are transposed views: not one-pass memory)
         for (parts, strided) in [(1, false), (2, false), (1, true)] {
-            let (params, plain) = (fresh(1), fresh(1));
-            let params: Vec<Tensor> = params
-                .into_iter()
-                .map(|p| p.set_requires_grad(true))
+            // Copies, not two draws (see the test above).
+            let params = fresh(1);
+            let plain: Vec<Tensor> = params
+                .iter()
+                .map(|p| p.copy().set_requires_grad(true))
                 .collect();
-            let plain: Vec<Tensor> = plain
+            let params: Vec<Tensor> = params
                 .into_iter()
                 .map(|p| p.set_requires_grad(true))
                 .collect();

@@ -1265,7 +1265,13 @@ mod tests {
             .with_writer(move || writer.clone())
             .with_ansi(false)
             .finish();
-        tracing::subscriber::with_default(subscriber, f);
+        tracing::subscriber::with_default(subscriber, || {
+            // A callsite first reached by another test's thread while this subscriber was being
+            // registered can keep that moment's "no one listens" (tracing caches it per
+            // callsite): ask every callsite again now.
+            tracing::callsite::rebuild_interest_cache();
+            f()
+        });
         let bytes = text.0.lock().unwrap().clone();
         String::from_utf8(bytes).unwrap()
     }
