@@ -833,14 +833,7 @@ impl Learner {
     /// Reports workers the run waits on that have been silent for `run.worker_timeout`: one
     /// `STALLED {json}` line on stdout each (the launcher kills and restarts the worker).
     fn watch(&mut self, control: &Control) {
-        let owes: Vec<bool> = (0..self.k)
-            .map(|w| {
-                let owes_step = self.workers.rollouts[w].sent < control.budget[w]
-                    && (self.cfg.run.mode == Mode::Async || self.workers.pending[w].is_empty());
-                let owes_eval = self.epochs.eval_reported[w] < self.epochs.eval_epoch;
-                control.stop == 0 && (owes_step || owes_eval || self.workers.accepting[w].is_none())
-            })
-            .collect();
+        let owes = self.waited_on(control);
         for (w, silent) in self.workers.watchdog.late(&owes, Instant::now()) {
             tracing::warn!(
                 "worker {w} has sent nothing for {:.0} s while the run waits on it (run.worker_timeout = {}); it is hung or stopped: restart it",
@@ -851,6 +844,20 @@ impl Learner {
             let line = serde_json::json!({ "worker": w, "silent_s": silent.as_secs_f64() });
             let _ = writeln!(out, "STALLED {line}").and_then(|()| out.flush());
         }
+    }
+
+    /// Per worker, whether the run waits on it under `control`: for a step of its budget (in a
+    /// sync run only while its step of the round is not in), an evaluation, or its joining.
+    /// Nothing once the run is stopping.
+    fn waited_on(&self, control: &Control) -> Vec<bool> {
+        (0..self.k)
+            .map(|w| {
+                let owes_step = self.workers.rollouts[w].sent < control.budget[w]
+                    && (self.cfg.run.mode == Mode::Async || self.workers.pending[w].is_empty());
+                let owes_eval = self.epochs.eval_reported[w] < self.epochs.eval_epoch;
+                control.stop == 0 && (owes_step || owes_eval || self.workers.accepting[w].is_none())
+            })
+            .collect()
     }
 
     /// The latest round's numbers in TensorBoard (`live/`), every few seconds.
@@ -1835,6 +1842,60 @@ mod tests {
             "the end"
         );
         let _ = std::fs::remove_dir_all(dir);
+    }
+
+    /// The watchdog reports only workers the run waits on: a worker that has sent its whole
+    /// grant and owes no evaluation is idle, not hung (reporting it would get a healthy worker
+    /// killed while the learner trains); a sync worker whose step of the round is in waits too.
+    #[test]
+    fn the_run_waits_on_a_worker_for_a_step_of_its_budget_an_evaluation_or_its_joining() {
+        for mode in [Mode::Sync, Mode::Async] {
+            let (mut l, dir) = learner(mode);
+            let mut control = l.control(false);
+            control.budget[..2].copy_from_slice(&[3, 3]);
+            l.workers.rollouts[0].sent = 2;
+            l.workers.rollouts[1].sent = 3;
+            assert_eq!(
+                l.waited_on(&control),
+                [true, false],
+                "{mode:?}: owed a step, done"
+            );
+            l.workers.rollouts[1].sent = 4;
+            assert_eq!(
+                l.waited_on(&control),
+                [true, false],
+                "{mode:?}: past its budget"
+            );
+            l.workers.pending[0].push_back(Pending {
+                worker: 0,
+                episode_return: None,
+                row: None,
+            });
+            // A sync worker whose step is in waits for the round; an async one steps on.
+            assert_eq!(
+                l.waited_on(&control),
+                [mode == Mode::Async, false],
+                "{mode:?}"
+            );
+            l.workers.rollouts[0].sent = 3;
+            l.workers.pending[0].clear();
+            assert_eq!(l.waited_on(&control), [false, false], "{mode:?}: both done");
+            l.epochs.eval_epoch = 1;
+            l.epochs.eval_reported = vec![1, 0];
+            assert_eq!(
+                l.waited_on(&control),
+                [false, true],
+                "{mode:?}: owes an evaluation"
+            );
+            l.epochs.eval_reported = vec![1, 1];
+            l.workers.accepting[0] = None;
+            assert_eq!(l.waited_on(&control), [true, false], "{mode:?}: not joined");
+            l.workers.rollouts[0].sent = 0;
+            l.epochs.eval_reported = vec![0, 0];
+            control.stop = 1;
+            assert_eq!(l.waited_on(&control), [false, false], "{mode:?}: stopping");
+            let _ = std::fs::remove_dir_all(dir);
+        }
     }
 
     #[test]
