@@ -1908,6 +1908,109 @@ mod tests {
         let _ = std::fs::remove_dir_all(dir);
     }
 
+    /// What the control tells the workers, worked out by hand from the config: in a sync run
+    /// (K = 2, a 5 000-step warm-up, 300 000 env steps) the warm-up's 2 500 steps an actor at once,
+    /// then one step per round up to the actor's 150 000; in an async run the grants, with the
+    /// configured policy lag. The run's shape and the stop order ride along.
+    #[test]
+    fn the_control_grants_a_sync_run_its_warm_up_at_once_then_one_step_per_round() {
+        let (mut l, dir) = learner(Mode::Sync);
+        assert_eq!(
+            (l.cfg.algo.warmup_steps, l.cfg.run.total_env_steps),
+            (5000, 300_000)
+        );
+        let c = l.control(false);
+        assert_eq!(&c.budget[..3], &[2500, 2500, 0], "the warm-up at once");
+        l.stats.lockstep_rounds = 2600;
+        assert_eq!(&l.control(false).budget[..3], &[2601, 2601, 0], "one more round");
+        l.stats.lockstep_rounds = 149_999;
+        assert_eq!(&l.control(false).budget[..2], &[150_000, 150_000]);
+        l.stats.lockstep_rounds = 150_000;
+        assert_eq!(&l.control(false).budget[..2], &[150_000, 150_000], "the actor's share");
+        assert_eq!((c.actors, c.obs_dim, c.act_dim), (2, 3, 1), "Pendulum");
+        assert_eq!((c.env, c.env_options), (l.handshake.env, l.handshake.env_options));
+        assert_eq!(c.protocol_version, l.handshake.protocol_version);
+        assert_eq!((c.seed, c.warmup_steps, c.eval_episodes), (1, 2500, 10));
+        assert_eq!((&c.hidden[..3], c.hidden_layers), (&[256, 256, 0][..], 2));
+        assert_eq!((c.max_policy_lag, c.exploration_noise, c.stop), (0, 0.0, 0));
+        l.stats.weights_version = 7;
+        l.epochs.eval_epoch = 3;
+        let c = l.control(true);
+        assert_eq!((c.weights_version, c.eval_epoch, c.stop), (7, 3, 1));
+        let _ = std::fs::remove_dir_all(dir);
+
+        let (mut l, dir) = learner(Mode::Async);
+        l.workers.granted = vec![40, 0];
+        let c = l.control(false);
+        assert_eq!(c.max_policy_lag, 4);
+        assert_eq!(&c.budget[..2], &l.workers.granted[..], "the grants, topped up");
+        assert!(c.budget[0] >= 40 && c.budget[2..].iter().all(|&b| b == 0));
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    /// An epoch ends at its multiple of `eval.epoch_env_steps`: in a sync run at the end of the
+    /// round that reaches it (the evaluation runs after the round), in an async run at once; a
+    /// transition that ends an episode scores its actor with the episode's return.
+    #[test]
+    fn an_epoch_ends_at_its_round_in_a_sync_run_and_at_its_step_in_an_async_one() {
+        for (mode, end) in [(Mode::Sync, 4), (Mode::Async, 3)] {
+            let (mut l, dir) = learner(mode);
+            l.cfg.eval.epoch_env_steps = 3;
+            let pending = |worker, episode_return| Pending {
+                worker,
+                episode_return,
+                row: None,
+            };
+            l.store(pending(0, None));
+            l.store(pending(1, Some(-5.0)));
+            assert_eq!((l.epochs.eval_epoch, l.epochs.epoch_ends.len()), (0, 0));
+            l.store(pending(0, None));
+            assert_eq!(l.epochs.eval_epoch, 1, "{mode:?}");
+            assert_eq!(Vec::from(l.epochs.epoch_ends.clone()), vec![(1, end)], "{mode:?}");
+            l.store(pending(1, Some(-3.0)));
+            l.store(pending(0, None));
+            assert_eq!(l.epochs.epoch_ends.len(), 1, "epoch 2 ends at 6");
+            l.store(pending(1, None));
+            assert_eq!(Vec::from(l.epochs.epoch_ends.clone()), vec![(1, end), (2, 6)]);
+            assert_eq!(l.stats.inserted, 6);
+            assert_eq!(l.ranking.scores(), vec![None, Some(-4.0)], "the mean of -5 and -3");
+            let _ = std::fs::remove_dir_all(dir);
+        }
+    }
+
+    /// The ranking as broadcast: every score slot past the actors, and an actor without a score,
+    /// NaN.
+    #[test]
+    fn the_ranking_message_carries_the_scores_the_best_and_the_version() {
+        let (mut l, dir) = learner(Mode::Sync);
+        assert!(l.ranking.evaluation(1, 1, 42.0));
+        let m = l.ranking_message();
+        assert_eq!((m.version, m.actors, m.best), (1, 2, 1));
+        assert!(m.scores[0].is_nan() && m.scores[2..].iter().all(|s| s.is_nan()));
+        assert_eq!(m.scores[1], 42.0);
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    /// A resumed run's metrics.csv keeps its header and the rows of the epochs its checkpoint had
+    /// logged; later rows (written after that checkpoint) go, and so does anything not a row.
+    #[test]
+    fn a_resumed_runs_metrics_keep_the_header_and_the_epochs_logged() {
+        let dir = std::env::temp_dir().join(format!("selkd-truncate-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("metrics.csv");
+        std::fs::write(&path, "epoch,env_steps\n1,1000\n2,2000\n3,3000\n4,4\nhalf a li").unwrap();
+        truncate_metrics(&path, 2).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(&path).unwrap(),
+            "epoch,env_steps\n1,1000\n2,2000\n"
+        );
+        truncate_metrics(&path, 0).unwrap();
+        assert_eq!(std::fs::read_to_string(&path).unwrap(), "epoch,env_steps\n");
+        let e = truncate_metrics(&dir.join("absent.csv"), 1).unwrap_err();
+        assert!(format!("{e:#}").contains("absent.csv"), "{e:#}");
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
     /// `run.device`: "cpu", or CUDA where libtorch sees it; otherwise a one-line error that says
     /// what to write instead (on this CPU-only CI the CUDA branch is the error).
     #[test]
