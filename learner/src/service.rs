@@ -1180,6 +1180,11 @@ mod tests {
     }
 
     fn learner(mode: Mode) -> (Learner, PathBuf) {
+        learner_with(mode, |_| {})
+    }
+
+    /// A 2-actor learner on Pendulum, its config changed by `set` before it is made.
+    fn learner_with(mode: Mode, set: impl FnOnce(&mut Config)) -> (Learner, PathBuf) {
         // A directory per call: the tests run in parallel.
         static CALLS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
         let dir = std::env::temp_dir().join(format!(
@@ -1191,6 +1196,7 @@ mod tests {
         let mut cfg = Config::default();
         cfg.run.mode = mode;
         cfg.algo.actors = 2;
+        set(&mut cfg);
         let mut l = Learner::new(cfg, &dir, None).unwrap();
         l.workers.accepting = vec![Some(7); 2];
         l.workers.granted = vec![u64::MAX; 2];
@@ -1922,13 +1928,24 @@ mod tests {
         let c = l.control(false);
         assert_eq!(&c.budget[..3], &[2500, 2500, 0], "the warm-up at once");
         l.stats.lockstep_rounds = 2600;
-        assert_eq!(&l.control(false).budget[..3], &[2601, 2601, 0], "one more round");
+        assert_eq!(
+            &l.control(false).budget[..3],
+            &[2601, 2601, 0],
+            "one more round"
+        );
         l.stats.lockstep_rounds = 149_999;
         assert_eq!(&l.control(false).budget[..2], &[150_000, 150_000]);
         l.stats.lockstep_rounds = 150_000;
-        assert_eq!(&l.control(false).budget[..2], &[150_000, 150_000], "the actor's share");
+        assert_eq!(
+            &l.control(false).budget[..2],
+            &[150_000, 150_000],
+            "the actor's share"
+        );
         assert_eq!((c.actors, c.obs_dim, c.act_dim), (2, 3, 1), "Pendulum");
-        assert_eq!((c.env, c.env_options), (l.handshake.env, l.handshake.env_options));
+        assert_eq!(
+            (c.env, c.env_options),
+            (l.handshake.env, l.handshake.env_options)
+        );
         assert_eq!(c.protocol_version, l.handshake.protocol_version);
         assert_eq!((c.seed, c.warmup_steps, c.eval_episodes), (1, 2500, 10));
         assert_eq!((&c.hidden[..3], c.hidden_layers), (&[256, 256, 0][..], 2));
@@ -1943,7 +1960,11 @@ mod tests {
         l.workers.granted = vec![40, 0];
         let c = l.control(false);
         assert_eq!(c.max_policy_lag, 4);
-        assert_eq!(&c.budget[..2], &l.workers.granted[..], "the grants, topped up");
+        assert_eq!(
+            &c.budget[..2],
+            &l.workers.granted[..],
+            "the grants, topped up"
+        );
         assert!(c.budget[0] >= 40 && c.budget[2..].iter().all(|&b| b == 0));
         let _ = std::fs::remove_dir_all(dir);
     }
@@ -1966,16 +1987,98 @@ mod tests {
             assert_eq!((l.epochs.eval_epoch, l.epochs.epoch_ends.len()), (0, 0));
             l.store(pending(0, None));
             assert_eq!(l.epochs.eval_epoch, 1, "{mode:?}");
-            assert_eq!(Vec::from(l.epochs.epoch_ends.clone()), vec![(1, end)], "{mode:?}");
+            assert_eq!(
+                Vec::from(l.epochs.epoch_ends.clone()),
+                vec![(1, end)],
+                "{mode:?}"
+            );
             l.store(pending(1, Some(-3.0)));
             l.store(pending(0, None));
             assert_eq!(l.epochs.epoch_ends.len(), 1, "epoch 2 ends at 6");
             l.store(pending(1, None));
-            assert_eq!(Vec::from(l.epochs.epoch_ends.clone()), vec![(1, end), (2, 6)]);
+            assert_eq!(
+                Vec::from(l.epochs.epoch_ends.clone()),
+                vec![(1, end), (2, 6)]
+            );
             assert_eq!(l.stats.inserted, 6);
-            assert_eq!(l.ranking.scores(), vec![None, Some(-4.0)], "the mean of -5 and -3");
+            assert_eq!(
+                l.ranking.scores(),
+                vec![None, Some(-4.0)],
+                "the mean of -5 and -3"
+            );
             let _ = std::fs::remove_dir_all(dir);
         }
+    }
+
+    /// A small run: a 4-step warm-up (2 steps an actor), 6 env steps in all, small networks.
+    fn tiny(cfg: &mut Config) {
+        cfg.algo.warmup_steps = 4;
+        cfg.algo.batch_size = 4;
+        cfg.algo.hidden = vec![8, 8];
+        cfg.run.total_env_steps = 6;
+    }
+
+    /// Algorithm 1's lockstep: nothing is stored while an evaluation is out, a round is stored
+    /// once both actors' steps are in, the round that completes the warm-up trains and hands
+    /// the weights out before the next round is stored, and nothing is stored past the budget.
+    #[test]
+    fn a_sync_round_is_stored_when_every_actor_is_in_and_trains_once_warmed_up() {
+        let (mut l, dir) = learner_with(Mode::Sync, tiny);
+        let row = [0.1f32, 0.2, 0.3, 0.5, -1.0, 0.1, 0.2, 0.3, 0.0, 0.0];
+        for _ in 0..4 {
+            l.on_transition(header(0), &row);
+            l.on_transition(header(1), &row);
+        }
+        l.epochs.eval_epoch = 1;
+        assert!(!l.advance_sync().unwrap());
+        assert_eq!(l.stats.inserted, 0, "an evaluation is out");
+        l.epochs.evaluation(0, 1, f64::NAN);
+        l.epochs.evaluation(1, 1, f64::NAN);
+        assert!(
+            l.advance_sync().unwrap(),
+            "the second round completes the warm-up"
+        );
+        assert_eq!((l.stats.inserted, l.stats.lockstep_rounds), (4, 2));
+        assert_eq!(
+            (l.stats.weights_version, l.selkd.actor_updates),
+            (2, 1),
+            "version 1: the initial weights"
+        );
+        assert_eq!(
+            l.workers
+                .pending
+                .iter()
+                .map(|q| q.len())
+                .collect::<Vec<_>>(),
+            [2, 2]
+        );
+        assert!(l.advance_sync().unwrap(), "one round, one training round");
+        assert_eq!((l.stats.inserted, l.stats.weights_version), (6, 3));
+        assert!(!l.advance_sync().unwrap(), "the budget is spent");
+        assert_eq!((l.stats.inserted, l.stats.lockstep_rounds), (6, 3));
+        assert_eq!(l.workers.pending[0].len(), 1);
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    /// Async: a training round once the warm-up's 4 transitions are in, then one per K = 2
+    /// more, never ahead of the data.
+    #[test]
+    fn an_async_run_trains_one_round_per_k_transitions_after_the_warm_up() {
+        let (mut l, dir) = learner_with(Mode::Async, tiny);
+        let row = [0.1f32, 0.2, 0.3, 0.5, -1.0, 0.1, 0.2, 0.3, 0.0, 0.0];
+        let mut trained = vec![];
+        for step in 0..6 {
+            l.on_transition(header(step % 2), &row);
+            trained.push(l.advance_async().unwrap());
+            trained.push(l.advance_async().unwrap());
+        }
+        assert_eq!(l.stats.inserted, 6);
+        assert_eq!(
+            trained,
+            [false, false, false, false, false, false, true, false, false, false, true, false]
+        );
+        assert_eq!((l.selkd.actor_updates, l.stats.weights_version), (2, 3));
+        let _ = std::fs::remove_dir_all(dir);
     }
 
     /// The ranking as broadcast: every score slot past the actors, and an actor without a score,
@@ -1998,7 +2101,11 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("selkd-truncate-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("metrics.csv");
-        std::fs::write(&path, "epoch,env_steps\n1,1000\n2,2000\n3,3000\n4,4\nhalf a li").unwrap();
+        std::fs::write(
+            &path,
+            "epoch,env_steps\n1,1000\n2,2000\n3,3000\n4,4\nhalf a li",
+        )
+        .unwrap();
         truncate_metrics(&path, 2).unwrap();
         assert_eq!(
             std::fs::read_to_string(&path).unwrap(),
