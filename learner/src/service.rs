@@ -2038,6 +2038,13 @@ mod tests {
             l.advance_sync().unwrap(),
             "the second round completes the warm-up"
         );
+        // Epoch 1's row is written as the learner stood when its evaluations came in, before
+        // the round that trained (a row written after it would depend on message timing).
+        let metrics = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
+        let rows: Vec<Vec<&str>> = metrics.lines().map(|l| l.split(',').collect()).collect();
+        let updates = rows[0].iter().position(|&c| c == "critic_updates").unwrap();
+        assert_eq!(rows.len(), 2, "{metrics}");
+        assert_eq!((rows[1][0], rows[1][updates]), ("1", "0"), "{metrics}");
         assert_eq!((l.stats.inserted, l.stats.lockstep_rounds), (4, 2));
         assert_eq!(
             (l.stats.weights_version, l.selkd.actor_updates),
