@@ -82,25 +82,8 @@ fn the_by_hand_example_trains_a_run_with_a_learner_and_two_workers() {
 fn workers_started_by_hand_exit_when_their_learner_is_gone() {
     use std::io::BufRead;
     let dir = temp_dir("by-hand-gone");
-    let config = dir.join("tiny.toml");
-    std::fs::write(&config, TINY).unwrap();
     let run_id = format!("gone{}", std::process::id());
-    let mut learner = Command::new(bin("learner"));
-    learner
-        .arg("--config")
-        .arg(&config)
-        .args(["--set", "run.total_env_steps=1000000", "--run-dir"])
-        .arg(dir.join("run"))
-        .args(["--run-id", &run_id]);
-    let mut learner = spawn(learner);
-    let mut workers: Vec<_> = (0..2)
-        .map(|w| {
-            let mut c = Command::new(bin("actor-worker"));
-            c.args(["--run-id", &run_id, "--worker", &w.to_string()])
-                .args(["--env", "pendulum"]);
-            spawn(c)
-        })
-        .collect();
+    let (mut learner, mut workers) = start_by_hand(&dir, &run_id, 1_000_000);
     // Training is under way: past the warm-up, so the workers wait on the learner's rounds.
     let mut progress = std::io::BufReader::new(learner.stdout.take().unwrap());
     let deadline = Instant::now() + Duration::from_secs(120);
@@ -145,8 +128,6 @@ fn workers_started_by_hand_exit_when_their_learner_is_gone() {
 fn an_observer_on_the_host_reads_the_ranking_the_learner_broadcasts() {
     use selkd_protocol::{services, Services};
     let dir = temp_dir("by-hand-ranking");
-    let config = dir.join("tiny.toml");
-    std::fs::write(&config, TINY).unwrap();
     let run_id = format!("ranking{}", std::process::id());
     let run_dir = dir.join("run");
     let node = services::node(&format!("observer{}", std::process::id())).unwrap();
@@ -155,22 +136,7 @@ fn an_observer_on_the_host_reads_the_ranking_the_learner_broadcasts() {
         .subscriber_builder()
         .create()
         .unwrap();
-    let mut learner = Command::new(bin("learner"));
-    learner
-        .arg("--config")
-        .arg(&config)
-        .args(["--set", "run.total_env_steps=1000", "--run-dir"])
-        .arg(&run_dir)
-        .args(["--run-id", &run_id]);
-    let mut learner = spawn(learner);
-    let workers: Vec<_> = (0..2)
-        .map(|w| {
-            let mut c = Command::new(bin("actor-worker"));
-            c.args(["--run-id", &run_id, "--worker", &w.to_string()])
-                .args(["--env", "pendulum"]);
-            spawn(c)
-        })
-        .collect();
+    let (mut learner, workers) = start_by_hand(&dir, &run_id, 1000);
     // (version, best, scores) of each ranking seen, polled faster than the learner's passes.
     let mut seen: Vec<(u64, u32, [f64; 2])> = Vec::new();
     let deadline = Instant::now() + Duration::from_secs(300);
@@ -204,4 +170,35 @@ fn an_observer_on_the_host_reads_the_ranking_the_learner_broadcasts() {
     assert_eq!(best, if want[1] > want[0] { 1 } else { 0 }, "{seen:?}");
     assert!(seen.len() >= 2, "only the final ranking was seen: {seen:?}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A learner (run directory DIR/run, the tiny config) and two Pendulum workers started as a user
+/// starts them in three terminals, without the launcher.
+fn start_by_hand(
+    dir: &Path,
+    run_id: &str,
+    total_env_steps: u64,
+) -> (std::process::Child, Vec<std::process::Child>) {
+    let config = dir.join("tiny.toml");
+    std::fs::write(&config, TINY).unwrap();
+    let mut learner = Command::new(bin("learner"));
+    learner
+        .arg("--config")
+        .arg(&config)
+        .arg("--set")
+        .arg(format!("run.total_env_steps={total_env_steps}"))
+        .arg("--run-dir")
+        .arg(dir.join("run"))
+        .args(["--run-id", run_id]);
+    let workers = (0..2)
+        .map(|w| {
+            let mut c = Command::new(bin("actor-worker"));
+            c.args(["--run-id", run_id, "--worker", &w.to_string()])
+                .args(["--env", "pendulum"]);
+            c
+        })
+        .collect::<Vec<_>>();
+    // The learner first: the workers wait for it (up to their connect timeout).
+    let learner = spawn(learner);
+    (learner, workers.into_iter().map(spawn).collect())
 }
