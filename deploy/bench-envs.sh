@@ -8,10 +8,12 @@ cd "$(dirname "$0")/.."
 rounds=${1:-3}
 steps=${2:-10000}
 venv=${SELKD_MUJOCO_VENV:-$HOME/.cache/selkd/mujoco-venv}
-if [ ! -x "$venv/bin/python" ]; then
-    echo "bench-envs: making $venv (gymnasium, mujoco)" >&2
-    python3 -m venv "$venv"
-    "$venv/bin/pip" install --quiet gymnasium mujoco
+# gymnasium[mujoco]: Gymnasium 1.4's MuJoCo envs also import imageio, which plain `gymnasium
+# mujoco` does not bring (the first MuJoCo step then fails, and with it the sitting).
+if ! "$venv/bin/python" -c "import gymnasium, mujoco, imageio" 2>/dev/null; then
+    echo "bench-envs: making $venv (gymnasium[mujoco])" >&2
+    [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
+    "$venv/bin/pip" install --quiet "gymnasium[mujoco]"
 fi
 [ -x target/release/selkd ] || { echo "bench-envs: build first: cargo build --release" >&2; exit 1; }
 printf '%-6s %-12s %10s %10s %6s\n' round task ours mujoco ratio
