@@ -1215,11 +1215,22 @@ mod tests {
         }
     }
 
+    /// A finite Pendulum transition as a worker sends it: s (3), a (1), r, s' (3), terminated,
+    /// truncated.
+    const ROW: [f32; 10] = [0.1, 0.2, 0.3, 0.5, -1.0, 0.4, 0.5, 0.6, 0.0, 0.0];
+
+    /// `s` seconds ago.
+    fn ago(s: u64) -> Instant {
+        Instant::now()
+            .checked_sub(Duration::from_secs(s))
+            .expect("uptime")
+    }
+
     #[test]
     fn non_finite_and_malformed_transitions_are_counted_and_never_stored() {
         for mode in [Mode::Sync, Mode::Async] {
             let (mut l, dir) = learner(mode);
-            let good = [0.1f32, 0.2, 0.3, 0.5, -1.0, 0.4, 0.5, 0.6, 0.0, 0.0];
+            let good = ROW;
             let mut nan = good;
             nan[4] = f32::NAN;
             let mut inf = good;
@@ -1294,7 +1305,7 @@ mod tests {
     #[test]
     fn bad_transitions_are_logged_once_or_at_powers_of_two() {
         let (mut l, dir) = learner(Mode::Async);
-        let good = [0.1f32, 0.2, 0.3, 0.5, -1.0, 0.4, 0.5, 0.6, 0.0, 0.0];
+        let good = ROW;
         let mut nan = good;
         nan[4] = f32::NAN;
         let log = logged(|| {
@@ -1337,9 +1348,8 @@ mod tests {
             (2, 0, 0.0, 0.0),
         ];
         let step = |l: &mut Learner, (episode, step, terminated, truncated)| {
-            let row = [
-                0.1f32, 0.2, 0.3, 0.5, -1.0, 0.4, 0.5, 0.6, terminated, truncated,
-            ];
+            let mut row = ROW;
+            (row[8], row[9]) = (terminated, truncated);
             l.on_transition(
                 TransitionHeader {
                     episode,
@@ -1366,28 +1376,21 @@ mod tests {
     fn policy_lag_counts_policy_steps_only() {
         let (mut l, dir) = learner(Mode::Async);
         l.stats.weights_version = 5;
-        let row = [0.1f32, 0.2, 0.3, 0.5, -1.0, 0.4, 0.5, 0.6, 0.0, 0.0];
-        let warmup = TransitionHeader {
-            policy_version: 0,
-            ..header(0)
+        let step = |l: &mut Learner, step, policy_version| {
+            let h = TransitionHeader {
+                policy_version,
+                step,
+                ..header(0)
+            };
+            l.on_transition(h, &ROW);
         };
-        l.on_transition(warmup, &row);
+        step(&mut l, 0, 0); // a warm-up draw
         assert_eq!(
             (l.stats.intake.lag_max, l.stats.intake.policy_lag_mean()),
             (0, 0.0)
         );
-        let policy = TransitionHeader {
-            policy_version: 3,
-            step: 1,
-            ..header(0)
-        };
-        l.on_transition(policy, &row);
-        let policy = TransitionHeader {
-            policy_version: 5,
-            step: 2,
-            ..header(0)
-        };
-        l.on_transition(policy, &row);
+        step(&mut l, 1, 3);
+        step(&mut l, 2, 5);
         assert_eq!(
             (l.stats.intake.lag_max, l.stats.intake.policy_lag_mean()),
             (2, 1.0)
@@ -1780,11 +1783,6 @@ mod tests {
     fn a_run_ends_at_its_budget_with_its_evaluations_or_120_s_after_without_them() {
         let (mut l, dir) = learner(Mode::Async);
         let total = l.cfg.run.total_env_steps;
-        let ago = |s| {
-            Instant::now()
-                .checked_sub(Duration::from_secs(s))
-                .expect("uptime")
-        };
         l.epochs.eval_epoch = 1;
         assert!(!l.epochs.evals_in(), "both actors owe epoch 1");
         let mut since = None;
@@ -1813,11 +1811,6 @@ mod tests {
     #[test]
     fn progress_goes_out_every_second_live_scalars_every_5_s_and_both_at_the_end() {
         let (mut l, dir) = learner(Mode::Async);
-        let ago = |s| {
-            Instant::now()
-                .checked_sub(Duration::from_secs(s))
-                .expect("uptime")
-        };
         let mut pass = Pass::new(0, 0);
         let just_now = Instant::now();
         std::thread::sleep(Duration::from_millis(2));
@@ -2024,10 +2017,9 @@ mod tests {
     #[test]
     fn a_sync_round_is_stored_when_every_actor_is_in_and_trains_once_warmed_up() {
         let (mut l, dir) = learner_with(Mode::Sync, tiny);
-        let row = [0.1f32, 0.2, 0.3, 0.5, -1.0, 0.1, 0.2, 0.3, 0.0, 0.0];
         for _ in 0..4 {
-            l.on_transition(header(0), &row);
-            l.on_transition(header(1), &row);
+            l.on_transition(header(0), &ROW);
+            l.on_transition(header(1), &ROW);
         }
         l.epochs.eval_epoch = 1;
         assert!(!l.advance_sync().unwrap());
@@ -2072,10 +2064,9 @@ mod tests {
     #[test]
     fn an_async_run_trains_one_round_per_k_transitions_after_the_warm_up() {
         let (mut l, dir) = learner_with(Mode::Async, tiny);
-        let row = [0.1f32, 0.2, 0.3, 0.5, -1.0, 0.1, 0.2, 0.3, 0.0, 0.0];
         let mut trained = vec![];
         for step in 0..6 {
-            l.on_transition(header(step % 2), &row);
+            l.on_transition(header(step % 2), &ROW);
             trained.push(l.advance_async().unwrap());
             trained.push(l.advance_async().unwrap());
         }
