@@ -3,10 +3,13 @@
 # learning_starts = 5000, on one of our rapier tasks (through the selkd Python package) and on
 # Gymnasium's MuJoCo v5 task of the same name, SEEDS seeds each, evaluated every EVERY env steps
 # on 10 deterministic episodes. The mean returns' ratio (ours / MuJoCo) at 30k and at STEPS
-# should lie in [0.5, 2]. Writes OUT/TASK/{ours,mujoco}/seed-N.csv and OUT/TASK/table.md, and
-# prints the table. Not a test: a measurement to run by hand (docs/results/fidelity.md).
+# should lie in [0.5, 2]. Writes OUT/TASK/{ours,mujoco}/seed-N.{csv,seconds,log} and
+# OUT/table.md (every task under OUT, with how many seeds each side has so far), and prints the
+# table. Not a test: a measurement to run by hand (docs/results/fidelity.md). OUT defaults to
+# docs/results/sb3-ours-vs-mujoco, where each finished run is committed as data: the
+# measurement takes ~22 core-hours, more than one machine's session, and continues on the next.
 #   bash deploy/compare/sb3-ours-vs-mujoco.sh [TASK] [SEEDS] [STEPS] [OUT]
-#   JOBS=2 bash deploy/compare/sb3-ours-vs-mujoco.sh halfcheetah 3 100000 /work/fidelity-runs
+#   JOBS=2 bash deploy/compare/sb3-ours-vs-mujoco.sh halfcheetah 3 100000
 # TASK: hopper, walker2d, halfcheetah, ant or humanoid. Resumable: a run whose seed-N.csv exists
 # is skipped (SB3 cannot resume midway, so an interrupted run starts again). JOBS runs at a time
 # (default 1), one thread each; EVERY defaults to 10000. Needs the venv deploy/python.sh makes.
@@ -15,7 +18,8 @@ cd "$(dirname "$0")/../.."
 task=${1:-halfcheetah}
 seeds=${2:-3}
 steps=${3:-100000}
-out=${4:-runs/sb3-ours-vs-mujoco}/$task
+root_out=${4:-docs/results/sb3-ours-vs-mujoco}
+out=$root_out/$task
 every=${EVERY:-10000}
 jobs=${JOBS:-1}
 cache=${SELKD_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/selkd}
@@ -49,27 +53,39 @@ for s in $(seq 1 "$seeds"); do
         [ -f "$out/$engine/seed-$s.csv" ] || echo "$engine $s"
     done
 done | xargs -r -P "$jobs" -L 1 bash -c 'one $0 $1'
-python3 - "$out" "$steps" <<'EOF' | tee "$out/table.md"
-import glob, statistics, sys
-out, steps = sys.argv[1], int(sys.argv[2])
-def returns(engine, at):
+python3 - "$root_out" "$steps" "$seeds" <<'EOF' | tee "$root_out/table.md"
+import glob, os, statistics, sys
+root, steps, seeds = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+def returns(task, engine, at):
     got = {}
-    for f in sorted(glob.glob(f"{out}/{engine}/seed-*.csv")):
+    for f in sorted(glob.glob(f"{root}/{task}/{engine}/seed-*.csv")):
         for line in open(f):
             seed, step, ret = line.strip().split(",")
             if int(step) == at:
                 got[int(seed)] = float(ret)
-    return got
+    return [got[s] for s in sorted(got)]
 def cell(v):
     if not v:
         return "–"
     sd = f" ± {statistics.stdev(v):.0f}" if len(v) > 1 else ""
     return f"{statistics.mean(v):.0f}{sd} ({', '.join(f'{x:.0f}' for x in v)})"
-print("| env steps | ours (rapier), SB3 SAC | MuJoCo v5, SB3 SAC | ratio |")
-print("|---|---|---|---|")
-for at in sorted({min(30000, steps), steps}):
-    a, b = returns("ours", at), returns("mujoco", at)
-    a, b = [a[s] for s in sorted(a)], [b[s] for s in sorted(b)]
-    ratio = f"{statistics.mean(a) / statistics.mean(b):.2f}" if a and b and statistics.mean(b) else "–"
-    print(f"| {at} | {cell(a)} | {cell(b)} | {ratio} |")
+print("SB3's SAC (its defaults, learning_starts = 5000) on our rapier task and on Gymnasium's")
+print("MuJoCo v5 task of the same name: mean return of 10 deterministic episodes per seed, then")
+print("mean ± sample std over seeds (each seed's in brackets). Goal: ratio in [0.5, 2].")
+print(f"Seeds wanted per side: {seeds}; a row with fewer is partial.")
+print()
+print("| task | env steps | ours (rapier) | MuJoCo v5 | seeds (ours, MuJoCo) | ratio | in [0.5, 2] |")
+print("|---|---|---|---|---|---|---|")
+for task in ["hopper", "walker2d", "halfcheetah", "ant", "humanoid"]:
+    if not os.path.isdir(f"{root}/{task}"):
+        continue
+    for at in sorted({min(30000, steps), steps}):
+        a, b = returns(task, "ours", at), returns(task, "mujoco", at)
+        ratio, ok = "–", "–"
+        if a and b and statistics.mean(b):
+            r = statistics.mean(a) / statistics.mean(b)
+            ratio, ok = f"{r:.2f}", ("yes" if 0.5 <= r <= 2 else "**no**")
+            if min(len(a), len(b)) < seeds:
+                ok += " (partial)"
+        print(f"| {task} | {at} | {cell(a)} | {cell(b)} | {len(a)}, {len(b)} | {ratio} | {ok} |")
 EOF
