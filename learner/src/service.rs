@@ -761,10 +761,10 @@ impl Learner {
         let best = self.ranking.best();
         self.stats.last_round = self.selkd.train_round(&mut self.replay, best);
         let st = &self.stats.last_round;
-        if !st.critic_loss.is_finite()
-            || !st.q_mean.is_finite()
-            || st.actor_loss.iter().any(|v| !v.is_finite())
-        {
+        // Checked on the round's own statistics: a weight that became NaN or infinite in this
+        // round shows in them, so the broadcast and the checkpoint never carry it (any one
+        // number counts: `diverged`).
+        if diverged(st) {
             bail!(
                 "training diverged in round {} ({} env steps): critic loss {}, actor losses {:?}; nothing after the last checkpoint is kept (lower algo.lr, or check the env's rewards)",
                 self.selkd.actor_updates,
@@ -1163,6 +1163,14 @@ fn gone_check_due(mode: Mode, last: Instant) -> bool {
     mode == Mode::Async && last.elapsed() >= GONE_CHECK
 }
 
+/// Whether a round's statistics say the networks diverged: a non-finite critic loss, Q mean or
+/// any actor's loss.
+fn diverged(st: &RoundStats) -> bool {
+    !st.critic_loss.is_finite()
+        || !st.q_mean.is_finite()
+        || st.actor_loss.iter().any(|v| !v.is_finite())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1395,6 +1403,171 @@ mod tests {
             (l.stats.intake.lag_max, l.stats.intake.policy_lag_mean()),
             (2, 1.0)
         );
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    /// A transition is dropped as malformed when any one of its worker index, observation
+    /// width, action width or length does not fit the run, and as stale when it comes from a
+    /// process that is not the accepted one or, in an async run, beyond its worker's grant (in a
+    /// sync run the rounds pace the workers and grants do not apply); each drop is counted
+    /// once, and nothing of a dropped transition counts as the worker's step.
+    #[test]
+    fn a_transition_is_dropped_exactly_when_it_does_not_fit_or_is_not_the_accepted_processes() {
+        for mode in [Mode::Sync, Mode::Async] {
+            let (mut l, dir) = learner(mode);
+            for misfit in [
+                TransitionHeader {
+                    worker: 2, // the run has actors 0 and 1
+                    ..header(0)
+                },
+                TransitionHeader {
+                    obs_dim: 4,
+                    ..header(0)
+                },
+                TransitionHeader {
+                    act_dim: 2,
+                    ..header(0)
+                },
+            ] {
+                l.on_transition(misfit, &ROW);
+            }
+            l.on_transition(header(0), &[&ROW[..], &[0.0]].concat()); // one value too many
+            assert_eq!(l.stats.intake.dropped_malformed, 4, "{mode:?}");
+            l.on_transition(
+                TransitionHeader {
+                    incarnation: 8, // the accepted process of worker 0 is incarnation 7
+                    ..header(0)
+                },
+                &ROW,
+            );
+            l.workers.accepting[1] = None; // none accepted yet
+            l.on_transition(header(1), &ROW);
+            assert_eq!(l.stats.intake.dropped_stale, 2, "{mode:?}");
+            // Worker 0 is granted two steps; its third is beyond the grant in an async run.
+            l.workers.granted[0] = 2;
+            for step in 0..3 {
+                l.on_transition(TransitionHeader { step, ..header(0) }, &ROW);
+            }
+            let (stale, taken) = match mode {
+                Mode::Sync => (2, 3),
+                Mode::Async => (3, 2),
+            };
+            assert_eq!(
+                (
+                    l.stats.intake.dropped_stale,
+                    l.workers.rollouts[0].sent,
+                    l.workers.rollouts[1].sent
+                ),
+                (stale, taken, 0),
+                "{mode:?}"
+            );
+            assert_eq!(
+                (
+                    l.stats.intake.dropped_malformed,
+                    l.stats.intake.dropped_nonfinite
+                ),
+                (4, 0),
+                "{mode:?}"
+            );
+            match mode {
+                Mode::Sync => assert_eq!(l.workers.pending[0].len(), 3),
+                Mode::Async => assert_eq!(l.stats.inserted, 2),
+            }
+            let _ = std::fs::remove_dir_all(dir);
+        }
+    }
+
+    /// Divergence is any one non-finite number of a round's statistics, alone.
+    #[test]
+    fn a_round_diverged_when_any_one_of_its_losses_or_its_q_mean_is_not_finite() {
+        let healthy = RoundStats {
+            critic_loss: 0.5,
+            q_mean: -3.0,
+            actor_loss: vec![1.0, 2.0],
+            ..Default::default()
+        };
+        assert!(!diverged(&healthy));
+        assert!(!diverged(&RoundStats::default()), "before any round");
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            let one = [
+                RoundStats {
+                    critic_loss: bad,
+                    ..healthy.clone()
+                },
+                RoundStats {
+                    q_mean: bad,
+                    ..healthy.clone()
+                },
+                RoundStats {
+                    actor_loss: vec![1.0, bad],
+                    ..healthy.clone()
+                },
+            ];
+            for st in one {
+                assert!(diverged(&st), "{st:?}");
+            }
+        }
+    }
+
+    /// A healthy round is one new weights version; a learning rate of 1e30 diverges within a
+    /// few rounds, and the run stops with the round's error without counting a version for it.
+    #[test]
+    fn a_round_is_one_weights_version_and_a_diverged_one_an_error() {
+        for lr in [3e-4, 1e30] {
+            let (mut l, dir) = learner_with(Mode::Async, |c| {
+                tiny(c);
+                c.algo.lr = lr;
+            });
+            for step in 0..8 {
+                l.on_transition(
+                    TransitionHeader {
+                        step: step / 2,
+                        ..header(step as u32 % 2)
+                    },
+                    &ROW,
+                );
+            }
+            l.replay.flush();
+            let first = l.stats.weights_version;
+            let mut healthy = 0;
+            let err = loop {
+                match l.train_round() {
+                    Ok(()) => healthy += 1,
+                    Err(e) => break Some(e.to_string()),
+                }
+                if healthy == 5 {
+                    break None;
+                }
+            };
+            assert_eq!(l.stats.weights_version, first + healthy);
+            match err {
+                None => assert_eq!(lr, 3e-4, "no divergence in 5 rounds at lr {lr}"),
+                Some(err) => {
+                    assert_eq!(lr, 1e30, "{err}");
+                    assert!(err.contains("training diverged in round"), "{err}");
+                }
+            }
+            let _ = std::fs::remove_dir_all(dir);
+        }
+    }
+
+    /// A worker's first hello is logged as a join; a second hello before its cursor is sent, or
+    /// from the process already accepted, is not.
+    #[test]
+    fn a_worker_joining_is_logged_once() {
+        let (mut l, dir) = learner(Mode::Async);
+        let ours = l.handshake;
+        let hello = |worker, incarnation| proto::Report::hello(ours, worker, 0, incarnation);
+        l.workers.accepting[1] = None;
+        let joined = |log: &str| log.matches("worker 1 joined").count();
+        let log = logged(|| l.on_report(&hello(1, 9)));
+        assert_eq!(joined(&log), 1, "{log}");
+        let log = logged(|| l.on_report(&hello(1, 9)));
+        assert_eq!(joined(&log), 0, "its cursor is due already: {log}");
+        l.workers.cursor_due[1] = None;
+        l.workers.accepting[1] = Some(9);
+        let log = logged(|| l.on_report(&hello(1, 9)));
+        assert_eq!(joined(&log), 0, "accepted already: {log}");
         let _ = std::fs::remove_dir_all(dir);
     }
 
