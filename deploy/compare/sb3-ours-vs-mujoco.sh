@@ -12,7 +12,8 @@
 #   JOBS=2 bash deploy/compare/sb3-ours-vs-mujoco.sh halfcheetah 3 100000
 # TASK: hopper, walker2d, halfcheetah, ant or humanoid. Resumable: a run whose seed-N.csv exists
 # is skipped (SB3 cannot resume midway, so an interrupted run starts again). JOBS runs at a time
-# (default 1), one thread each; EVERY defaults to 10000. Needs the venv deploy/python.sh makes.
+# (default 1), one thread each; EVERY defaults to 10000. TABLE_ONLY=1 runs nothing and writes
+# the table from the runs there are. Needs the venv deploy/python.sh makes.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 task=${1:-halfcheetah}
@@ -50,7 +51,7 @@ one() {
 export -f one; export out steps every venv name
 for s in $(seq 1 "$seeds"); do
     for engine in ours mujoco; do
-        [ -f "$out/$engine/seed-$s.csv" ] || echo "$engine $s"
+        [ -f "$out/$engine/seed-$s.csv" ] || [ -n "${TABLE_ONLY:-}" ] || echo "$engine $s"
     done
 done | xargs -r -P "$jobs" -L 1 bash -c 'one $0 $1'
 python3 - "$root_out" "$steps" "$seeds" <<'EOF' | tee "$root_out/table.md"
