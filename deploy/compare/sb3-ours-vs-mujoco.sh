@@ -49,11 +49,13 @@ one() {
     mv "$out/$engine/seed-$s.csv.partial" "$out/$engine/seed-$s.csv"
 }
 export -f one; export out steps every venv name
-for s in $(seq 1 "$seeds"); do
-    for engine in ours mujoco; do
-        [ -f "$out/$engine/seed-$s.csv" ] || [ -n "${TABLE_ONLY:-}" ] || echo "$engine $s"
-    done
-done | xargs -r -P "$jobs" -L 1 bash -c 'one $0 $1'
+if [ -z "${TABLE_ONLY:-}" ]; then
+    for s in $(seq 1 "$seeds"); do
+        for engine in ours mujoco; do
+            [ -f "$out/$engine/seed-$s.csv" ] || echo "$engine $s"
+        done
+    done | xargs -r -P "$jobs" -L 1 bash -c 'one $0 $1'
+fi
 python3 - "$root_out" "$steps" "$seeds" <<'EOF' | tee "$root_out/table.md"
 import glob, os, statistics, sys
 root, steps, seeds = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])

@@ -190,15 +190,15 @@ fn start_by_hand(
         .arg("--run-dir")
         .arg(dir.join("run"))
         .args(["--run-id", run_id]);
+    // The learner first: the workers wait for it (up to their connect timeout).
+    let learner = spawn(learner);
     let workers = (0..2)
         .map(|w| {
             let mut c = Command::new(bin("actor-worker"));
             c.args(["--run-id", run_id, "--worker", &w.to_string()])
                 .args(["--env", "pendulum"]);
-            c
+            spawn(c)
         })
-        .collect::<Vec<_>>();
-    // The learner first: the workers wait for it (up to their connect timeout).
-    let learner = spawn(learner);
-    (learner, workers.into_iter().map(spawn).collect())
+        .collect();
+    (learner, workers)
 }
