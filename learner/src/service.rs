@@ -1115,7 +1115,13 @@ fn same_control(a: &Control, b: &Control) -> bool {
 /// Refuses bf16 critic matmuls on a CPU without native bf16: libtorch emulates them there, 12×
 /// slower than fp32 (1.95 against 23.5 updates/s on an AMD EPYC with AVX2).
 pub fn check_matmul(matmul: crate::config::Precision, device: Device) -> Result<()> {
-    if matmul == crate::config::Precision::Bf16 && device == Device::Cpu && !cpu_has_bf16() {
+    check_matmul_on(matmul, device, cpu_has_bf16())
+}
+
+/// `check_matmul` on a CPU that has native bf16 exactly when `cpu_bf16`: the answer is an
+/// argument so that a test can give both on any machine.
+fn check_matmul_on(matmul: crate::config::Precision, device: Device, cpu_bf16: bool) -> Result<()> {
+    if matmul == crate::config::Precision::Bf16 && device == Device::Cpu && !cpu_bf16 {
         bail!("algo.critic_matmul = \"bf16\" needs a CPU that multiplies bf16 natively (AVX-512 BF16 or AMX); this one ({}) has neither, and libtorch would emulate it about 12× slower than fp32: use algo.critic_matmul = \"fp32\"", cpu_model());
     }
     Ok(())
@@ -1797,21 +1803,37 @@ mod tests {
     }
 
     #[test]
+    fn bf16_matmuls_are_refused_exactly_on_a_cpu_without_them_and_name_the_fix() {
+        use crate::config::Precision::{Bf16, Fp32};
+        for cpu_bf16 in [false, true] {
+            for device in [Device::Cpu, Device::Cuda(0)] {
+                for matmul in [Fp32, Bf16] {
+                    // The one refusal: bf16 on a CPU without it.
+                    let refused = (matmul, device, cpu_bf16) == (Bf16, Device::Cpu, false);
+                    let got = check_matmul_on(matmul, device, cpu_bf16);
+                    assert_eq!(got.is_err(), refused, "{matmul:?} {device:?} {cpu_bf16}");
+                    if let Err(e) = got {
+                        let e = e.to_string();
+                        assert!(
+                            e.contains(&cpu_model())
+                                && e.contains("use algo.critic_matmul = \"fp32\""),
+                            "{e}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
     #[cfg(all(target_os = "linux", target_arch = "x86_64"))]
-    fn bf16_matmuls_are_refused_exactly_on_a_cpu_without_them() {
+    fn this_cpus_bf16_is_the_one_its_kernel_reports() {
         use crate::config::Precision;
         let info = std::fs::read_to_string("/proc/cpuinfo").unwrap();
         assert!(check_matmul(Precision::Fp32, Device::Cpu).is_ok());
         assert!(check_matmul(Precision::Bf16, Device::Cuda(0)).is_ok());
         let bf16 = check_matmul(Precision::Bf16, Device::Cpu);
         assert_eq!(bf16.is_ok(), kernel_says_bf16(&info), "{bf16:?}");
-        if let Err(e) = bf16 {
-            let e = e.to_string();
-            assert!(
-                e.contains(&cpu_model()) && e.contains("use algo.critic_matmul = \"fp32\""),
-                "{e}"
-            );
-        }
         // The model named is the one /proc/cpuinfo names.
         let model = cpu_model();
         assert!(!model.is_empty() && model != "unknown CPU", "{model:?}");
