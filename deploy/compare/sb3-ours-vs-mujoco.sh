@@ -56,9 +56,18 @@ if [ -z "${TABLE_ONLY:-}" ]; then
         done
     done | xargs -r -P "$jobs" -L 1 bash -c 'one $0 $1'
 fi
-python3 - "$root_out" "$steps" "$seeds" <<'EOF' | tee "$root_out/table.md"
-import glob, os, statistics, sys
-root, steps, seeds = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+python3 - "$root_out" "$steps" "$seeds" docs/results/published/gym-mujoco-v4.csv <<'EOF' | tee "$root_out/table.md"
+import csv, glob, os, statistics, sys
+root, steps, seeds, published = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+# Published SAC on Gym's v4 task (SimbaV2's curves, deploy/published_baselines.py): whether the
+# MuJoCo side's seeds are typical of SAC there. A reference beside the ratio, not part of it.
+sac = {(r["task"].lower(), int(r["budget_env_steps"])): r for r in csv.DictReader(open(published))
+       if r["method"] == "SAC"}
+def published_cell(task, at):
+    r = sac.get((task, at))
+    if r is None:
+        return "–"
+    return f"{float(r['mean']):.0f} ± {float(r['std']):.0f} ({r['seeds']} seeds, {int(r['env_step']) // 1000}k)"
 def returns(task, engine, at):
     got = {}
     for f in sorted(glob.glob(f"{root}/{task}/{engine}/seed-*.csv")):
@@ -75,10 +84,12 @@ def cell(v):
 print("SB3's SAC (its defaults, learning_starts = 5000) on our rapier task and on Gymnasium's")
 print("MuJoCo v5 task of the same name: mean return of 10 deterministic episodes per seed, then")
 print("mean ± sample std over seeds (each seed's in brackets). Goal: ratio in [0.5, 2].")
-print(f"Seeds wanted per side: {seeds}; a row with fewer is partial.")
+print(f"Seeds wanted per side: {seeds}; a row with fewer is partial. Beside them, SAC's published")
+print("curves on Gym's v4 task (SimbaV2's repository, results/baseline/sac.csv; mean ± std over")
+print("its seeds at the evaluation nearest the budget), to show whether the MuJoCo side is typical.")
 print()
-print("| task | env steps | ours (rapier) | MuJoCo v5 | seeds (ours, MuJoCo) | ratio | in [0.5, 2] |")
-print("|---|---|---|---|---|---|---|")
+print("| task | env steps | ours (rapier) | MuJoCo v5 | seeds (ours, MuJoCo) | ratio | in [0.5, 2] | published SAC (v4) |")
+print("|---|---|---|---|---|---|---|---|")
 for task in ["hopper", "walker2d", "halfcheetah", "ant", "humanoid"]:
     if not os.path.isdir(f"{root}/{task}"):
         continue
@@ -90,5 +101,5 @@ for task in ["hopper", "walker2d", "halfcheetah", "ant", "humanoid"]:
             ratio, ok = f"{r:.2f}", ("yes" if 0.5 <= r <= 2 else "**no**")
             if min(len(a), len(b)) < seeds:
                 ok += " (partial)"
-        print(f"| {task} | {at} | {cell(a)} | {cell(b)} | {len(a)}, {len(b)} | {ratio} | {ok} |")
+        print(f"| {task} | {at} | {cell(a)} | {cell(b)} | {len(a)}, {len(b)} | {ratio} | {ok} | {published_cell(task, at)} |")
 EOF
