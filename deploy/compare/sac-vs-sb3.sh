@@ -54,7 +54,7 @@ theirs() {
     set -o pipefail
     local s=$1 t0=$SECONDS
     "$venv/bin/python" deploy/compare/sb3_sac.py "$task" "$s" "$steps" "$every" 10 \
-        2> "$out/sb3/seed-$s.log" | sed -u 's/^/sb3,/' > "$out/sb3/seed-$s.csv.partial" \
+        2> "$out/sb3/seed-$s.log" | sed -u 's/^/sb3,/; s/,[^,]*$//' > "$out/sb3/seed-$s.csv.partial" \
         || { echo "sac-vs-sb3: SB3 seed $s failed; see $out/sb3/seed-$s.log" >&2; return 1; }
     echo $((SECONDS - t0)) > "$out/sb3/seed-$s.seconds"
     mv "$out/sb3/seed-$s.csv.partial" "$out/sb3/seed-$s.csv"

@@ -68,14 +68,21 @@ def published_cell(task, at):
     if r is None:
         return "–"
     return f"{float(r['mean']):.0f} ± {float(r['std']):.0f} ({r['seeds']} seeds, {int(r['env_step']) // 1000}k)"
-def returns(task, engine, at):
+def evaluations(task, engine, at):
+    """Each seed's (mean return, mean length or None) at `at` env steps, by seed. Runs before
+    the twenty-fifth session wrote no length."""
     got = {}
     for f in sorted(glob.glob(f"{root}/{task}/{engine}/seed-*.csv")):
         for line in open(f):
-            seed, step, ret = line.strip().split(",")
+            seed, step, ret, *length = line.strip().split(",")
             if int(step) == at:
-                got[int(seed)] = float(ret)
+                got[int(seed)] = (float(ret), float(length[0]) if length else None)
     return [got[s] for s in sorted(got)]
+def lengths_cell(ours, mujoco):
+    """Mean episode length on each side, where every seed there has one."""
+    def side(v):
+        return f"{statistics.mean(v):.0f}" if v and None not in v else "–"
+    return f"{side([l for _, l in ours])} / {side([l for _, l in mujoco])}"
 def cell(v):
     if not v:
         return "–"
@@ -87,19 +94,22 @@ print("mean ± sample std over seeds (each seed's in brackets). Goal: ratio in [
 print(f"Seeds wanted per side: {seeds}; a row with fewer is partial. Beside them, SAC's published")
 print("curves on Gym's v4 task (SimbaV2's repository, results/baseline/sac.csv; mean ± std over")
 print("its seeds at the evaluation nearest the budget), to show whether the MuJoCo side is typical.")
+print("Episode length: the mean over seeds of each evaluation's mean (1 000 at most; a policy")
+print("that stands earns about 1 a step there), where every seed's run recorded it.")
 print()
-print("| task | env steps | ours (rapier) | MuJoCo v5 | seeds (ours, MuJoCo) | ratio | in [0.5, 2] | published SAC (v4) |")
-print("|---|---|---|---|---|---|---|---|")
+print("| task | env steps | ours (rapier) | MuJoCo v5 | seeds (ours, MuJoCo) | ratio | in [0.5, 2] | episode length (ours / MuJoCo) | published SAC (v4) |")
+print("|---|---|---|---|---|---|---|---|---|")
 for task in ["hopper", "walker2d", "halfcheetah", "ant", "humanoid"]:
     if not os.path.isdir(f"{root}/{task}"):
         continue
     for at in sorted({min(30000, steps), steps}):
-        a, b = returns(task, "ours", at), returns(task, "mujoco", at)
+        ours, mujoco = evaluations(task, "ours", at), evaluations(task, "mujoco", at)
+        a, b = [r for r, _ in ours], [r for r, _ in mujoco]
         ratio, ok = "–", "–"
         if a and b and statistics.mean(b):
             r = statistics.mean(a) / statistics.mean(b)
             ratio, ok = f"{r:.2f}", ("yes" if 0.5 <= r <= 2 else "**no**")
             if min(len(a), len(b)) < seeds:
                 ok += " (partial)"
-        print(f"| {task} | {at} | {cell(a)} | {cell(b)} | {len(a)}, {len(b)} | {ratio} | {ok} | {published_cell(task, at)} |")
+        print(f"| {task} | {at} | {cell(a)} | {cell(b)} | {len(a)}, {len(b)} | {ratio} | {ok} | {lengths_cell(ours, mujoco)} | {published_cell(task, at)} |")
 EOF

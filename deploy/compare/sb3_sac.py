@@ -1,6 +1,8 @@
 """Stable-Baselines3's SAC on a Gymnasium task with its default settings, evaluated as our runs
 are: every EVERY env steps, EPISODES deterministic episodes on a separate env. One CSV row per
-evaluation: seed,env_steps,mean_return. Run by deploy/compare/sac-vs-sb3.sh.
+evaluation: seed,env_steps,mean_return,mean_length (the length tells a policy that stands, whose
+return is mostly the healthy reward, from one that moves). Run by deploy/compare/sac-vs-sb3.sh
+and sb3-ours-vs-mujoco.sh.
 
 Usage: python sb3_sac.py TASK SEED STEPS [EVERY] [EPISODES]   (e.g. Hopper-v5 1 50000 5000 10)
 TASK is any Gymnasium id, ours included (`selkd/HalfCheetah-v0`: the selkd package registers
@@ -31,17 +33,22 @@ class Evaluate(BaseCallback):
 
     def _on_step(self):
         if self.num_timesteps % every == 0:
-            returns = []
+            returns, lengths = [], []
             for e in range(episodes):
                 obs, _ = self.env.reset(seed=1_000_000 + 1000 * self.num_timesteps + e)
-                done, total = False, 0.0
+                done, total, length = False, 0.0, 0
                 while not done:
                     action, _ = self.model.predict(obs, deterministic=True)
                     obs, r, term, trunc, _ = self.env.step(action)
                     total += r
+                    length += 1
                     done = term or trunc
                 returns.append(total)
-            print(f"{seed},{self.num_timesteps},{np.mean(returns):.3f}", flush=True)
+                lengths.append(length)
+            print(
+                f"{seed},{self.num_timesteps},{np.mean(returns):.3f},{np.mean(lengths):.1f}",
+                flush=True,
+            )
         return True
 
 
