@@ -7,6 +7,8 @@ and sb3-ours-vs-mujoco.sh.
 Usage: python sb3_sac.py TASK SEED STEPS [EVERY] [EPISODES]   (e.g. Hopper-v5 1 50000 5000 10)
 TASK is any Gymnasium id, ours included (`selkd/HalfCheetah-v0`: the selkd package registers
 them). LEARNING_STARTS=N in the environment replaces SB3's default 100 uniform-random steps.
+SB3_SAVE_DIR=DIR saves the final policy as DIR/<task with / as ->-seed-<seed>.zip (SB3's format;
+deploy/compare/sb3_gait.py replays it and describes its gait).
 """
 import os
 import sys
@@ -57,3 +59,6 @@ class Evaluate(BaseCallback):
 starts = int(os.environ.get("LEARNING_STARTS", 100))
 model = SAC("MlpPolicy", gym.make(task), seed=seed, device="cpu", verbose=0, learning_starts=starts)
 model.learn(total_timesteps=steps, callback=Evaluate())
+if os.environ.get("SB3_SAVE_DIR"):
+    os.makedirs(os.environ["SB3_SAVE_DIR"], exist_ok=True)
+    model.save(os.path.join(os.environ["SB3_SAVE_DIR"], f"{task.replace('/', '-')}-seed-{seed}"))
