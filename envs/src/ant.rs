@@ -100,6 +100,8 @@ pub const SIM: SimParams = SimParams {
     limit_frequency: RAPIER_LIMIT_FREQUENCY,
     implicit_limits: false,
     stabilization_iterations: crate::physics::RAPIER_STABILIZATION_ITERATIONS,
+    contact_frequency: None,
+    contact_damping_ratio: None,
 };
 const PREDICTION_DISTANCE: f32 = 0.1;
 const INIT_Z: f32 = 0.75;

@@ -159,7 +159,8 @@ fn parse(task: &str, spec: &str) -> (SimParams, PhysicsTuning) {
     for p in parts {
         if let Some(c) = p.strip_prefix('c') {
             let (hz, zeta) = c.split_once('@').expect("cHZ@ZETA");
-            tuning.softness = Some((hz.parse().unwrap(), zeta.parse().unwrap()));
+            sim.contact_frequency = Some(hz.parse().unwrap());
+            sim.contact_damping_ratio = Some(zeta.parse().unwrap());
         } else if let Some(j) = p.strip_prefix('j') {
             let (hz, zeta) = j.split_once('@').expect("jHZ@ZETA");
             assert_eq!(zeta, "1", "limits have damping ratio 1: /jHZ@1");

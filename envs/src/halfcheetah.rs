@@ -99,6 +99,8 @@ pub const SIM: SimParams = SimParams {
     limit_frequency: RAPIER_LIMIT_FREQUENCY,
     implicit_limits: false,
     stabilization_iterations: crate::physics::RAPIER_STABILIZATION_ITERATIONS,
+    contact_frequency: None,
+    contact_damping_ratio: None,
 };
 /// Rapier's contact prediction distance, m (its default is 2 cm): the cheetah's feet move
 /// fast against 10 ms steps, and contacts found only once a foot is already inside the floor

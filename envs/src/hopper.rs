@@ -70,6 +70,8 @@ pub const SIM: SimParams = SimParams {
     limit_frequency: 16.0,
     implicit_limits: false,
     stabilization_iterations: crate::physics::RAPIER_STABILIZATION_ITERATIONS,
+    contact_frequency: None,
+    contact_damping_ratio: None,
 };
 const INIT_Z: f32 = 1.25;
 const RESET_NOISE: f32 = 5e-3;

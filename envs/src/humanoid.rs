@@ -108,6 +108,8 @@ pub const SIM: SimParams = SimParams {
     limit_frequency: 16.0,
     implicit_limits: false,
     stabilization_iterations: crate::physics::RAPIER_STABILIZATION_ITERATIONS,
+    contact_frequency: None,
+    contact_damping_ratio: None,
 };
 /// Rapier's contact prediction distance, m: contacts are found this far ahead, so a foot
 /// moving at a few m/s in a 7.5 ms step does not sink into the floor before its contact
@@ -180,6 +182,10 @@ pub struct HumanoidOptions {
     pub implicit_limits: Option<bool>,
     /// Overrides [`SIM`]'s relax iterations per solver pass.
     pub stabilization_iterations: Option<usize>,
+    /// Overrides [`SIM`]'s contact softness frequency, Hz.
+    pub contact_frequency: Option<f32>,
+    /// Overrides [`SIM`]'s contact softness damping ratio.
+    pub contact_damping_ratio: Option<f32>,
 }
 
 impl Default for HumanoidOptions {
@@ -195,6 +201,8 @@ impl Default for HumanoidOptions {
             limit_frequency: None,
             implicit_limits: None,
             stabilization_iterations: None,
+            contact_frequency: None,
+            contact_damping_ratio: None,
         }
     }
 }
@@ -209,6 +217,8 @@ impl HumanoidOptions {
             limit_frequency: self.limit_frequency,
             implicit_limits: self.implicit_limits,
             stabilization_iterations: self.stabilization_iterations,
+            contact_frequency: self.contact_frequency,
+            contact_damping_ratio: self.contact_damping_ratio,
         }
     }
 

@@ -752,6 +752,25 @@ mod tests {
                 )),
                 "{e}"
             );
+            // Contact softness: unset keeps rapier's own; out of range is refused by name.
+            assert!(make_with(
+                name,
+                &table("contact_frequency = 8\ncontact_damping_ratio = 1")
+            )
+            .is_ok());
+            let e = err(name, "contact_frequency = 0");
+            assert!(
+                e.contains(
+                    "`contact_frequency` must be above 0 and at most 1000, got 0 (unset keeps \
+                     rapier's own)"
+                ),
+                "{e}"
+            );
+            let e = err(name, "contact_damping_ratio = 101");
+            assert!(
+                e.contains("`contact_damping_ratio` must be above 0 and at most 100, got 101"),
+                "{e}"
+            );
             // A wrong type names its key (toml's own message does not).
             let e = err(name, "substeps = 4\nimplicit_limits = 1");
             assert!(
@@ -805,6 +824,9 @@ mod tests {
         // Rapier's relax iterations act once the feet touch the floor.
         assert_eq!(default, gait("stabilization_iterations = 1"));
         assert_ne!(default, gait("stabilization_iterations = 0"));
+        // Contact softness, frequency and damping ratio each, once the feet touch the floor.
+        assert_ne!(default, gait("contact_frequency = 8"));
+        assert_ne!(default, gait("contact_damping_ratio = 1"));
         // fpc-assembly's tolerances are options: read, and checked by the env.
         let e = err("fpc-assembly", "lateral_tol_mm = -0.1");
         assert!(

@@ -89,6 +89,18 @@ pub struct SimParams {
     /// three: "The hopper's relax pass"). Absent in records older than it (so 1).
     #[serde(default = "rapier_stabilization_iterations")]
     pub stabilization_iterations: usize,
+    /// Natural frequency of the contacts' softness, Hz, for contacts with the floor and between
+    /// moving bodies alike; `None` keeps rapier's own (60 Hz against fixed bodies, 30 Hz
+    /// between moving ones). Issue 32: MuJoCo's contacts are soft (`solref` 0.02 s, about
+    /// 8 Hz, with an impedance that starts at 0 on touching), rapier's stiff; on the cheetah's
+    /// running gait 8–30 Hz changed little where the step size changed much
+    /// (`docs/results/fidelity.md`, "The cheetah fails goal 2 at 100k env steps"). Absent in
+    /// records older than it (so `None`).
+    #[serde(default)]
+    pub contact_frequency: Option<f32>,
+    /// Damping ratio of the contacts' softness; `None` keeps rapier's own (10).
+    #[serde(default)]
+    pub contact_damping_ratio: Option<f32>,
 }
 
 /// Rapier's own default of [`SimParams::stabilization_iterations`].
@@ -100,7 +112,7 @@ fn rapier_stabilization_iterations() -> usize {
 
 impl SimParams {
     /// Each setting by name, as it reads (the shortest decimal that is the same `f32`).
-    pub fn fields(&self) -> [(&'static str, String); 7] {
+    pub fn fields(&self) -> [(&'static str, String); 9] {
         // Destructured, so that a new setting cannot be left out of the records.
         let SimParams {
             control_dt,
@@ -110,7 +122,10 @@ impl SimParams {
             limit_frequency,
             implicit_limits,
             stabilization_iterations,
+            contact_frequency,
+            contact_damping_ratio,
         } = *self;
+        let rapier = |x: Option<f32>| x.map_or_else(|| "rapier's".to_string(), |x| x.to_string());
         [
             ("control_dt", control_dt.to_string()),
             ("substeps", substeps.to_string()),
@@ -122,6 +137,8 @@ impl SimParams {
                 "stabilization_iterations",
                 stabilization_iterations.to_string(),
             ),
+            ("contact_frequency", rapier(contact_frequency)),
+            ("contact_damping_ratio", rapier(contact_damping_ratio)),
         ]
     }
 
@@ -162,8 +179,8 @@ pub const RAPIER_LIMIT_FREQUENCY: f32 = 1.0e6;
 const LIMIT_DAMPING_RATIO: f32 = 1.0;
 
 /// A user's override of a robot's [`SimParams`] (the keys `substeps`, `solver_iterations`,
-/// `prediction_distance`, `limit_frequency`, `implicit_limits` and `stabilization_iterations` of
-/// a run's `[env_options]`):
+/// `prediction_distance`, `limit_frequency`, `implicit_limits`, `stabilization_iterations`,
+/// `contact_frequency` and `contact_damping_ratio` of a run's `[env_options]`):
 /// trade speed for integration accuracy.
 /// Unset keys keep the robot's own choice, documented at each robot's `SIM`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Deserialize)]
@@ -181,7 +198,16 @@ pub struct PhysicsOptions {
     pub implicit_limits: Option<bool>,
     /// Rapier's relax iterations per solver pass ([`SimParams::stabilization_iterations`]).
     pub stabilization_iterations: Option<usize>,
+    /// The contacts' natural frequency, Hz ([`SimParams::contact_frequency`]).
+    pub contact_frequency: Option<f32>,
+    /// The contacts' damping ratio ([`SimParams::contact_damping_ratio`]).
+    pub contact_damping_ratio: Option<f32>,
 }
+
+/// The largest [`PhysicsOptions::contact_frequency`], Hz.
+pub const MAX_CONTACT_FREQUENCY: f32 = 1000.0;
+/// The largest [`PhysicsOptions::contact_damping_ratio`].
+pub const MAX_CONTACT_DAMPING_RATIO: f32 = 100.0;
 
 /// The largest [`PhysicsOptions::prediction_distance`], m: a contact a metre away is not one.
 pub const MAX_PREDICTION_DISTANCE: f32 = 1.0;
@@ -227,6 +253,14 @@ impl PhysicsOptions {
             RAPIER_LIMIT_FREQUENCY,
             "Hz (a hard limit)",
         )?;
+        // An optional positive amount up to `max`: unset keeps the robot's own.
+        let optional = |key: &str, value: Option<f32>, default: Option<f32>, max: f32| match value {
+            None => Ok(default),
+            Some(x) if x > 0.0 && x <= max => Ok(Some(x)),
+            Some(x) => Err(format!(
+                "`{key}` must be above 0 and at most {max}, got {x} (unset keeps rapier's own)"
+            )),
+        };
         let sim = SimParams {
             control_dt: default.control_dt,
             substeps: count(
@@ -253,6 +287,18 @@ impl PhysicsOptions {
                 0,
                 MAX_STABILIZATION_ITERATIONS,
             )?,
+            contact_frequency: optional(
+                "contact_frequency",
+                self.contact_frequency,
+                default.contact_frequency,
+                MAX_CONTACT_FREQUENCY,
+            )?,
+            contact_damping_ratio: optional(
+                "contact_damping_ratio",
+                self.contact_damping_ratio,
+                default.contact_damping_ratio,
+                MAX_CONTACT_DAMPING_RATIO,
+            )?,
         };
         sim.check_limit()?;
         Ok(sim)
@@ -271,6 +317,15 @@ pub fn new_world(p: &SimParams) -> PhysicsWorld {
     w.integration_parameters.normalized_prediction_distance = p.prediction_distance;
     w.integration_parameters
         .num_internal_stabilization_iterations = p.stabilization_iterations;
+    let ip = &mut w.integration_parameters;
+    for softness in [&mut ip.contact_softness, &mut ip.static_contact_softness] {
+        if let Some(hz) = p.contact_frequency {
+            softness.natural_frequency = hz;
+        }
+        if let Some(zeta) = p.contact_damping_ratio {
+            softness.damping_ratio = zeta;
+        }
+    }
     w
 }
 
@@ -1057,20 +1112,12 @@ pub struct Robot {
 /// fidelity measurement ([`crate`]'s `fidelity` tests) sweeps; unset fields keep the robot's own.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct PhysicsTuning {
-    /// Contact softness (natural frequency Hz, damping ratio), for contacts with fixed bodies
-    /// (the floor) and moving ones alike.
-    pub softness: Option<(f32, f32)>,
     /// The articulation's Coriolis terms explicit (see [`Articulation::set_explicit_coriolis`]).
     pub explicit_coriolis: Option<bool>,
 }
 
 impl PhysicsTuning {
     fn apply(&self, w: &mut PhysicsWorld, art: &Articulation) {
-        let ip = &mut w.integration_parameters;
-        if let Some((hz, zeta)) = self.softness {
-            ip.contact_softness = SpringCoefficients::new(hz, zeta);
-            ip.static_contact_softness = SpringCoefficients::new(hz, zeta);
-        }
         if let Some(e) = self.explicit_coriolis {
             art.set_explicit_coriolis(w, e);
         }
@@ -1280,6 +1327,8 @@ mod tests {
             limit_frequency: RAPIER_LIMIT_FREQUENCY,
             implicit_limits: false,
             stabilization_iterations: RAPIER_STABILIZATION_ITERATIONS,
+            contact_frequency: None,
+            contact_damping_ratio: None,
         };
         let mut w = new_world(&p);
         add_floor(&mut w, 1.0);
@@ -1363,6 +1412,8 @@ mod tests {
             limit_frequency: RAPIER_LIMIT_FREQUENCY,
             implicit_limits: false,
             stabilization_iterations: RAPIER_STABILIZATION_ITERATIONS,
+            contact_frequency: None,
+            contact_damping_ratio: None,
         };
         let mut w = new_world(&p);
         add_floor(&mut w, 1.0);
@@ -1470,6 +1521,8 @@ mod tests {
             limit_frequency: RAPIER_LIMIT_FREQUENCY,
             implicit_limits: false,
             stabilization_iterations: RAPIER_STABILIZATION_ITERATIONS,
+            contact_frequency: None,
+            contact_damping_ratio: None,
         };
         let mut w = new_world(&p);
         w.gravity = Vector::ZERO;

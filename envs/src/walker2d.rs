@@ -97,6 +97,8 @@ pub const SIM: SimParams = SimParams {
     limit_frequency: 16.0,
     implicit_limits: false,
     stabilization_iterations: 0,
+    contact_frequency: None,
+    contact_damping_ratio: None,
 };
 const INIT_Z: f32 = 1.25;
 const RESET_NOISE: f32 = 5e-3;
