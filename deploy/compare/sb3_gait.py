@@ -6,15 +6,19 @@ it earns. Deterministic episodes, seeds 0..EPISODES-1; one Markdown table row pe
 Usage: python sb3_gait.py MODEL.zip ENV_ID [EPISODES]
   MODEL.zip from sb3_sac.py with SB3_SAVE_DIR set; ENV_ID e.g. HalfCheetah-v5 or
   selkd/HalfCheetah-v0 (a policy may be replayed on the other engine: same spaces).
-  --header prints the table's header instead.
+  --header prints the table's header instead. SB3_ENV_OPTIONS='{"key": value}' (JSON) passes
+  options to gym.make (ours: a run config's [env_options] keys, e.g. {"substeps": 50}).
 
 Columns: return; episode length; forward speed (mean of qvel[0], m/s); torso height (mean of
 qpos[1]: relative to the model's rest height on the cheetah, absolute on the hopper and walker);
 pitch (mean |qpos[2]|, rad); upside down (share of steps with cos(pitch) < 0); at limits (share of
 steps with the joint within 0.05 rad of or past a limit of the XML's range, each joint in the
-XML's order); stride (the dominant frequency of the first joint's angle, Hz); action size (mean
+XML's order); overshoot (the 99th percentile, over all steps and joints, of how far a joint is
+past its range, rad: MuJoCo's limits are soft, rapier's hard unless `limit_frequency` says); stride (the dominant frequency of the first joint's angle, Hz); action size (mean
 of the squared action, the cost's term before its weight).
 """
+import json
+import os
 import sys
 
 import gymnasium as gym
@@ -31,7 +35,7 @@ CONTROL_DT = {"Hopper": 0.008, "Walker2d": 0.008, "HalfCheetah": 0.05}
 
 HEADER = (
     "| policy | env | return | length | forward m/s | height | pitch | upside down | at limits | "
-    "stride Hz | action² |\n|---|---|---|---|---|---|---|---|---|---|---|"
+    "overshoot | stride Hz | action² |\n|---|---|---|---|---|---|---|---|---|---|---|---|"
 )
 
 
@@ -58,8 +62,9 @@ def main():
     ranges = np.array(RANGES[fam])
     nj = len(ranges)
     model = SAC.load(path, device="cpu")
-    env = gym.make(env_id)
-    returns, lengths, speed, height, pitch, flipped, limits, stride, act2 = ([] for _ in range(9))
+    options = json.loads(os.environ.get("SB3_ENV_OPTIONS") or "{}")
+    env = gym.make(env_id, **options)
+    returns, lengths, speed, height, pitch, flipped, limits, past, stride, act2 = ([] for _ in range(10))
     for e in range(episodes):
         obs, _ = env.reset(seed=e)
         done, total, joints = False, 0.0, []
@@ -76,6 +81,7 @@ def main():
             q = obs[2 : 2 + nj]
             joints.append(q)
             limits.append((q < ranges[:, 0] + NEAR) | (q > ranges[:, 1] - NEAR))
+            past.extend(np.maximum(np.maximum(ranges[:, 0] - q, q - ranges[:, 1]), 0.0))
             act2.append(float(np.mean(np.square(np.clip(action, -1, 1)))))
         returns.append(total)
         lengths.append(len(joints))
@@ -85,10 +91,11 @@ def main():
             freqs = np.fft.rfftfreq(len(a), CONTROL_DT[fam])
             stride.append(freqs[1:][np.argmax(power[1:])])
     at = np.mean(np.array(limits), axis=0)
+    where = env_id + (" " + json.dumps(options) if options else "")
     print(
-        f"| {path.rsplit('/', 1)[-1]} | {env_id} | {np.mean(returns):.0f} ± {np.std(returns):.0f} | "
+        f"| {path.rsplit('/', 1)[-1]} | {where} | {np.mean(returns):.0f} ± {np.std(returns):.0f} | "
         f"{np.mean(lengths):.0f} | {np.mean(speed):.2f} | {np.mean(height):.3f} | {np.mean(pitch):.2f} | "
-        f"{100 * np.mean(flipped):.0f}% | {' '.join(f'{100 * x:.0f}' for x in at)}% | "
+        f"{100 * np.mean(flipped):.0f}% | {' '.join(f'{100 * x:.0f}' for x in at)}% | {np.percentile(past, 99):.3f} | "
         f"{np.median(stride) if stride else float('nan'):.2f} | {np.mean(act2):.2f} |"
     )
 
