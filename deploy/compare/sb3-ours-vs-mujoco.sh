@@ -23,6 +23,8 @@ root_out=${4:-docs/results/sb3-ours-vs-mujoco}
 out=$root_out/$task
 every=${EVERY:-10000}
 jobs=${JOBS:-1}
+# The probes' switches of sb3_sac.py change the task: never inherited by this measurement.
+unset SB3_ENV_OPTIONS SB3_END_FLIPPED
 cache=${SELKD_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/selkd}
 venv=${SELKD_PYTHON_VENV:-$cache/python-venv}
 case "$task" in
