@@ -455,6 +455,23 @@ pub const ROLLOUT_STEPS: usize = 200;
 /// system's.)
 pub fn rollout_fingerprint(env: &mut dyn Env) -> u64 {
     let n = env.spec().act_dim;
+    fingerprint_rollout(env, ROLLOUT_STEPS, |t| {
+        // Exact in f32 and free of libm, whose last bits may differ between machines.
+        (0..n)
+            .map(|i| ((7 * t + 3 * i) % 21) as f32 / 10.0 - 1.0)
+            .collect()
+    })
+}
+
+/// FNV-1a over the bits of every observation, reward and ending of `steps` steps from
+/// `reset(Some(0))` under `action(t)` (an episode that ends is reset with the next seed):
+/// [`rollout_fingerprint`] with actions of the caller's choice (the `fingerprints` example's
+/// longer random-action rollout).
+pub fn fingerprint_rollout(
+    env: &mut dyn Env,
+    steps: usize,
+    mut action: impl FnMut(usize) -> Vec<f32>,
+) -> u64 {
     let mut h = Fnv1a::new();
     let eat_obs = |h: &mut Fnv1a, obs: &[f32]| {
         for x in obs {
@@ -463,12 +480,8 @@ pub fn rollout_fingerprint(env: &mut dyn Env) -> u64 {
     };
     let mut seed = 0;
     eat_obs(&mut h, &env.reset(Some(seed)));
-    for t in 0..ROLLOUT_STEPS {
-        // Exact in f32 and free of libm, whose last bits may differ between machines.
-        let a: Vec<f32> = (0..n)
-            .map(|i| ((7 * t + 3 * i) % 21) as f32 / 10.0 - 1.0)
-            .collect();
-        let s = env.step(&a);
+    for t in 0..steps {
+        let s = env.step(&action(t));
         eat_obs(&mut h, &s.obs);
         h.eat(&s.reward.to_bits().to_le_bytes());
         h.eat(&[s.terminated as u8, s.truncated as u8]);
