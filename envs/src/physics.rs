@@ -1555,6 +1555,57 @@ mod tests {
         assert!(v[6] > 0.1 && v[7] < -0.1 && art.is_sane(&w), "{v:?}");
     }
 
+    /// Each planar robot, settled on a floor where every friction coefficient is μ, then given
+    /// 2 m/s forward: friction is the only horizontal force on it, so its centre of mass slows
+    /// at μg (Coulomb) while it slides. Upstream rapier left a planar multibody's lower links
+    /// almost no friction (`vendor/README.md`, "immobile friction directions"): in 0.1 s the
+    /// hopper on its foot and the cheetah on its feet slowed by 0.00 m/s of these 0.35.
+    #[test]
+    fn planar_robots_slide_and_slow_at_mu_g() {
+        const MU: f32 = 0.4;
+        for (name, mut links) in [
+            ("hopper", crate::hopper::links()),
+            ("walker2d", crate::walker2d::links()),
+            ("halfcheetah", crate::halfcheetah::links()),
+        ] {
+            let sim = crate::halfcheetah::SIM;
+            let mut w = new_world(&sim);
+            add_floor(&mut w, MU);
+            for l in &mut links {
+                l.friction = MU;
+            }
+            let art = Articulation::build(&mut w, RootJoint::Planar, &links);
+            let torques = vec![0.0; art.nv() - 3];
+            let step = |w: &mut PhysicsWorld| {
+                let before = art.center_of_mass(w);
+                art.apply_joint_torques(w, &torques);
+                w.step();
+                (art.center_of_mass(w) - before) / w.integration_parameters.dt
+            };
+            for _ in 0..300 {
+                step(&mut w);
+            }
+            let (rest, mut v) = (art.qpos(&w), vec![0.0; art.nv()]);
+            v[0] = 2.0;
+            art.set_state(&mut w, &rest, &v);
+            let dt = w.integration_parameters.dt;
+            // 0.1 s: the hopper, upright on its foot, tips over backward soon after.
+            let steps = (0.1 / dt).round() as usize;
+            let v0 = step(&mut w);
+            let mut end = v0;
+            for _ in 1..steps {
+                end = step(&mut w);
+            }
+            let slowed = v0.x - end.x;
+            let coulomb = MU * -GRAVITY_Z * ((steps - 1) as f32 * dt);
+            assert!(
+                (slowed - coulomb).abs() < 0.08 * coulomb,
+                "{name}: slowed {slowed:.3} m/s in 0.1 s, Coulomb friction {coulomb:.3} (from {:.3})",
+                v0.x
+            );
+        }
+    }
+
     /// A ball with a sprung arm, sliding on the floor: the contact wrench's force (normal and
     /// friction) equals the robot's momentum change minus gravity, and the centre of mass lies
     /// between the ball's centre and the arm.

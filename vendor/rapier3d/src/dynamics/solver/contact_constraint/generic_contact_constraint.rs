@@ -16,6 +16,11 @@ use crate::prelude::RigidBodyHandle;
 use crate::utils::OrthonormalBasis;
 use parry::math::Vector;
 
+/// SELKD patch (immobile friction directions): a friction direction whose inverse effective mass
+/// is at most this fraction of the contact's largest (normal or tangent) is one the bodies cannot
+/// move along; it gets no impulse (see `GenericContactConstraintBuilder::generate`).
+const IMMOBILE_INV_MASS_RATIO: Real = 1.0e-6;
+
 #[derive(Copy, Clone)]
 pub(crate) struct GenericContactConstraintBuilder {
     infos: [CoulombContactPointInfos<Real>; MAX_MANIFOLD_POINTS],
@@ -179,6 +184,7 @@ impl GenericContactConstraintBuilder {
 
             // Normal part.
             let restitution_seed;
+            let normal_inv_r;
             {
                 let torque_dir1 = dp1.gcross(force_dir1);
                 let torque_dir2 = dp2.gcross(-force_dir1);
@@ -218,7 +224,8 @@ impl GenericContactConstraintBuilder {
                     0.0
                 };
 
-                let r = crate::utils::inv(inv_r1 + inv_r2);
+                normal_inv_r = inv_r1 + inv_r2;
+                let r = crate::utils::inv(normal_inv_r);
 
                 // Warm-start impulses and contact newness come from the manifold
                 // point (they are not duplicated on the solver contacts).
@@ -265,6 +272,8 @@ impl GenericContactConstraintBuilder {
                 // See the normal part.
                 out_constraint.tangent_part[k].impulse_accumulator =
                     -out_constraint.tangent_part[k].impulse;
+
+                let mut tangent_inv_r = [0.0; DIM - 1];
 
                 for j in 0..DIM - 1 {
                     let torque_dir1 = dp1.gcross(tangents1[j]);
@@ -322,7 +331,7 @@ impl GenericContactConstraintBuilder {
                         0.0
                     };
 
-                    let r = crate::utils::inv(inv_r1 + inv_r2);
+                    tangent_inv_r[j] = inv_r1 + inv_r2;
                     let rhs_wo_bias = manifold_point.tangent_velocity.gdot(tangents1[j]);
 
                     out_constraint.tangent_part[k].rhs_wo_bias[j] = rhs_wo_bias;
@@ -331,7 +340,22 @@ impl GenericContactConstraintBuilder {
                     // TODO: in 3D, we should take into account gcross[0].dot(gcross[1])
                     // in lhs. See the corresponding code on the `velocity_constraint.rs`
                     // file.
-                    out_constraint.tangent_part[k].r[j] = r;
+                }
+
+                // SELKD patch (immobile friction directions): a tangent the bodies cannot move
+                // along (a planar multibody's out-of-plane axis) has an inverse effective mass
+                // of rounding noise, not zero, for links below the root. Upstream inverted it
+                // into an enormous `r` whose impulse took the whole friction budget (the 2-D
+                // `cap_magnitude` in the solve), leaving the in-plane friction near zero: a
+                // planar robot's feet slid freely. Such a direction gets no impulse.
+                let scale = normal_inv_r.max(tangent_inv_r[0]).max(tangent_inv_r[DIM - 2]);
+                for j in 0..DIM - 1 {
+                    out_constraint.tangent_part[k].r[j] =
+                        if tangent_inv_r[j] <= IMMOBILE_INV_MASS_RATIO * scale {
+                            0.0
+                        } else {
+                            crate::utils::inv(tangent_inv_r[j])
+                        };
                 }
             }
 
