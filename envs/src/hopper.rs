@@ -62,6 +62,10 @@ const CONTROL_DT: f32 = 0.008;
 /// converges too, 2×2 (2 ms) does not.
 /// Earlier measurements (bang-bang torques, random episodes): every setting from 1×2 to 8×8
 /// stayed finite and on the floor; joint-limit overshoot 1×2 0.022 rad, 1×4 0.003 rad.
+///
+/// The measurements above were made while the hopper's foot had almost no friction (a rapier bug
+/// on planar multibodies, fixed in the vendored copy on 2026-12-07; `vendor/README.md`): this
+/// setting's learned checks are owed again (`docs/results/fidelity.md`, "Read first").
 pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
     substeps: 4,

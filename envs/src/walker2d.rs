@@ -89,6 +89,10 @@ const CONTROL_DT: f32 = 0.008;
 /// their return and episode length 10× finer within 3% and 9% on the mean (4–8% and 4–17% per
 /// seed): `docs/results/fidelity.md`. The scripted gait ([`crate::gaits::WALKER2D`]) was
 /// climbed at 4 × 4 with the relax pass; its gaps at this setting are above.
+///
+/// The measurements above were made while the walker's feet had almost no friction (a rapier bug
+/// on planar multibodies, fixed in the vendored copy on 2026-12-07; `vendor/README.md`): this
+/// setting's learned checks are owed again (`docs/results/fidelity.md`, "Read first").
 pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
     substeps: 16,
