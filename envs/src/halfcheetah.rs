@@ -96,7 +96,7 @@ const CONTROL_DT: f32 = 0.05;
 /// multibodies, fixed in the vendored copy on 2026-12-07; `vendor/README.md`). With friction,
 /// MuJoCo's trained HalfCheetah-v5 policies run on 5 × 4 within 1% and 7% of 10× finer (4 077
 /// and 4 675; before the fix 6 649 against 2 001), SB3's SAC trained here runs upright at
-/// 5.5–6.0 m/s within 9–11% of 10× finer, and 5 × 1, 3 × 2 and 2 × 4 miss by ~20%: 5 × 4 stays
+/// 5.5–6.0 m/s within 8–11% of 10× finer, and 5 × 1, 3 × 2 and 2 × 4 miss by ~20%: 5 × 4 stays
 /// (`docs/results/fidelity.md`, "Read first").
 pub const SIM: SimParams = SimParams {
     control_dt: CONTROL_DT,
