@@ -16,8 +16,6 @@ the steps where MuJoCo had a contact, and the RMS difference of every qvel compo
 step. Our hopper and walker clip the observed velocities at 10 m/s (rad/s); states read back from
 such an observation are not exact, so read those tasks' numbers with that in mind.
 """
-import json
-import os
 import sys
 
 import gymnasium as gym
@@ -26,6 +24,8 @@ import numpy as np
 
 import selkd  # noqa: F401  (registers selkd/*)
 from stable_baselines3 import SAC
+
+from sb3_gait import env_options
 
 NAMES = {"hopper": "Hopper", "walker2d": "Walker2d", "halfcheetah": "HalfCheetah"}
 
@@ -39,7 +39,7 @@ def main(argv):
     model = SAC.load(argv[0], device="cpu")
     name = NAMES[argv[1]]
     steps = int(argv[2]) if len(argv) > 2 else 300
-    options = json.loads(os.environ.get("SB3_ENV_OPTIONS") or "{}")
+    options = env_options()
     ours = gym.make(f"selkd/{name}-v0", **options)
     reference = gym.make(f"{name}-v5")
     u = reference.unwrapped

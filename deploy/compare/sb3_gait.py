@@ -39,6 +39,12 @@ HEADER = (
 )
 
 
+def env_options():
+    """SB3_ENV_OPTIONS (JSON) from the environment: keyword options to gym.make (ours take a run
+    config's [env_options] keys). Read the same way by sb3_sac.py and one_step_vs_mujoco.py."""
+    return json.loads(os.environ.get("SB3_ENV_OPTIONS") or "{}")
+
+
 def family(env_id):
     for name in RANGES:
         if name in env_id:
@@ -62,7 +68,7 @@ def main():
     ranges = np.array(RANGES[fam])
     nj = len(ranges)
     model = SAC.load(path, device="cpu")
-    options = json.loads(os.environ.get("SB3_ENV_OPTIONS") or "{}")
+    options = env_options()
     env = gym.make(env_id, **options)
     returns, lengths, speed, height, pitch, flipped, limits, past, stride, act2 = ([] for _ in range(10))
     for e in range(episodes):

@@ -14,7 +14,6 @@ keys of a run config's [env_options], e.g. {"limit_frequency": 7.9}). SB3_END_FL
 episode of a planar task (obs[1] its pitch) once the torso is upside down (cos(pitch) < 0), in
 training and in evaluation: a probe of how fast a task can be run upright, not the task itself.
 """
-import json
 import os
 import sys
 
@@ -24,6 +23,8 @@ import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sb3_gait import env_options
+
 # One core per run, as our side (run.threads=1).
 torch.set_num_threads(1)
 task, seed, steps = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
@@ -31,7 +32,7 @@ every = int(sys.argv[4]) if len(sys.argv) > 4 else 1000
 episodes = int(sys.argv[5]) if len(sys.argv) > 5 else 10
 if task.startswith("selkd/"):
     import selkd  # noqa: F401  (registers selkd/<Name>-v0)
-options = json.loads(os.environ.get("SB3_ENV_OPTIONS") or "{}")
+options = env_options()
 
 
 class EndFlipped(gym.Wrapper):
