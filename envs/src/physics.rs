@@ -94,8 +94,9 @@ pub struct SimParams {
     /// between moving ones). Issue 32: MuJoCo's contacts are soft (`solref` 0.02 s, about
     /// 8 Hz, with an impedance that starts at 0 on touching), rapier's stiff; on the cheetah's
     /// running gait 8–30 Hz changed little where the step size changed much
-    /// (`docs/results/fidelity.md`, "The cheetah fails goal 2 at 100k env steps"). Absent in
-    /// records older than it (so `None`).
+    /// (`docs/results/fidelity.md`, "The cheetah fails goal 2 at 100k env steps"; measured
+    /// while the planar robots' feet had almost no friction, before the vendored fix). Absent
+    /// in records older than it (so `None`).
     #[serde(default)]
     pub contact_frequency: Option<f32>,
     /// Damping ratio of the contacts' softness; `None` keeps rapier's own (10).
