@@ -6,7 +6,7 @@ Both tasks' observations start with the torso's height, so the same code reads e
 Usage: python ant_terminations.py ENV_ID [EPISODES] [MODEL.zip]   (ENV_ID: Ant-v5 or
 selkd/Ant-v0; selkd's needs the selkd package on the path). Reset seeds 0..EPISODES-1, actions
 from numpy's default_rng(0), or a saved Stable-Baselines3 SAC policy's deterministic ones
-(sb3_sac.py with SB3_SAVE_DIR). Prints one line: the counts, the median episode length and the
+(sb3_sac.py with SB3_SAVE_DIR). Prints one line: the counts, the median (and mean) episode length and the
 median of each episode's highest torso, and the mean return ± its standard deviation over
 episodes. SB3_ENV_OPTIONS='{"key": value}' (JSON) passes options to gym.make, as sb3_gait.py
 (ours: e.g. {"substeps": 50, "solver_iterations": 4} for goal 1's reference).
@@ -53,6 +53,6 @@ for seed in range(episodes):
     highest.append(top)
 what = sys.argv[3] if len(sys.argv) > 3 else "random"
 where = env_id + (" " + json.dumps(options) if options else "")
-print(f"{where}: {episodes} {what} episodes, ends {ends}, median length {np.median(lengths):.0f}, "
+print(f"{where}: {episodes} {what} episodes, ends {ends}, median length {np.median(lengths):.0f} (mean {np.mean(lengths):.1f}), "
       f"median highest torso {np.median(highest):.3f} m, "
       f"return {np.mean(returns):.0f} ± {np.std(returns):.0f}")
