@@ -15,8 +15,9 @@
 # `limit_frequency`, Hz) and replay 10x finer than it (10 S substeps, the same I, D and F).
 # IMPLICIT_LIMITS=1 trains (and replays) with `implicit_limits = true` (the limit springs
 # integrated implicitly); STABILIZATION=N with `stabilization_iterations = N` (rapier's relax
-# iterations per solver pass; 1 is rapier's default). Results go to
-# OUT/TASK-SxI[-pD][-jF][-i][-zN], named by the setting trained at (shipped or not).
+# iterations per solver pass; 1 is rapier's default); PGS=N with `pgs_iterations = N` (rapier's
+# Gauss-Seidel iterations per solver pass, default 1; the reference keeps N). Results go to
+# OUT/TASK-SxI[-pD][-jF][-i][-zN][-gN], named by the setting trained at (shipped or not).
 # Our SAC as in deploy/compare/sac-vs-sb3.sh (SB3's sizes: [256, 256], batch 256, one update per
 # env step, 256 warm-up steps). Resumable: a seed whose final checkpoint holds STEPS is not trained again,
 # nor replayed again where its fine replay exists; a training run interrupted midway continues
@@ -65,7 +66,7 @@ esac
     || { echo "learned-policy-fidelity: cannot read $task's SIM in envs/src/$task.rs; update this script" >&2; exit 1; }
 # A candidate setting: trained with these [env_options].
 setting=()
-if [ -n "${SUBSTEPS:-}${ITERATIONS:-}${PREDICTION:-}${LIMIT_HZ:-}${IMPLICIT_LIMITS:-}${STABILIZATION:-}" ]; then
+if [ -n "${SUBSTEPS:-}${ITERATIONS:-}${PREDICTION:-}${LIMIT_HZ:-}${IMPLICIT_LIMITS:-}${STABILIZATION:-}${PGS:-}" ]; then
     substeps=${SUBSTEPS:-$substeps}
     iterations=${ITERATIONS:-$iterations}
     setting=(--set env_options.substeps="$substeps" --set env_options.solver_iterations="$iterations")
@@ -73,12 +74,13 @@ if [ -n "${SUBSTEPS:-}${ITERATIONS:-}${PREDICTION:-}${LIMIT_HZ:-}${IMPLICIT_LIMI
     [ -n "${LIMIT_HZ:-}" ] && setting+=(--set env_options.limit_frequency="$LIMIT_HZ")
     [ -n "${IMPLICIT_LIMITS:-}" ] && setting+=(--set env_options.implicit_limits=true)
     [ -n "${STABILIZATION:-}" ] && setting+=(--set env_options.stabilization_iterations="$STABILIZATION")
+    [ -n "${PGS:-}" ] && setting+=(--set env_options.pgs_iterations="$PGS")
 fi
-# Each setting in a directory of its own, named by it (OUT/TASK-SxI[-pD][-jF][-i][-zN]), so that the runs of
+# Each setting in a directory of its own, named by it (OUT/TASK-SxI[-pD][-jF][-i][-zN][-gN]), so that the runs of
 # another setting, or of the task before its shipped setting changed, are never taken for this
 # one's.
 relax=${STABILIZATION:-$shipped_stabilization}
-out=$out/$task-${substeps}x${iterations}${PREDICTION:+-p$PREDICTION}${LIMIT_HZ:+-j$LIMIT_HZ}${IMPLICIT_LIMITS:+-i}${relax:+-z$relax}
+out=$out/$task-${substeps}x${iterations}${PREDICTION:+-p$PREDICTION}${LIMIT_HZ:+-j$LIMIT_HZ}${IMPLICIT_LIMITS:+-i}${relax:+-z$relax}${PGS:+-g$PGS}
 fine_steps=${FINE_STEPS:-10}
 fine_passes=${FINE_PASSES:-1}
 fine=$((fine_steps * substeps))

@@ -47,6 +47,7 @@ for key in ("prediction_distance", "limit_frequency"):
 # Records older than these keys were made with their first defaults.
 print(f"implicit_limits = {str(p.get('implicit_limits', False)).lower()}")
 print(f"stabilization_iterations = {p.get('stabilization_iterations', 1)}")
+print(f"pgs_iterations = {p.get('pgs_iterations', 1)}")
 EOF
 }
 fine_steps=${FINE_STEPS:-10}

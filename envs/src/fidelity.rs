@@ -13,7 +13,8 @@
 //! prediction distance), `/e` or `/i` (the articulation's Coriolis terms explicit or rapier's
 //! semi-implicit default: [`crate::physics::Articulation::set_explicit_coriolis`]), `/jHZ@1`
 //! (every hinge's joint-limit frequency, [`SimParams::limit_frequency`]; damping ratio 1), `/zN`
-//! (rapier's relax iterations per solver pass, [`SimParams::stabilization_iterations`]); without
+//! (rapier's relax iterations per solver pass, [`SimParams::stabilization_iterations`]), `/gN`
+//! (rapier's Gauss–Seidel iterations per solver pass, [`SimParams::pgs_iterations`]); without
 //! `FIDELITY` every task is measured at its shipped `SIM`.
 //! `FIDELITY_SEEDS=N` measures seeds 0..N instead of 0–2; `FIDELITY_REF=SxP` makes the reference
 //! S× the rapier steps and P× the solver passes (10x1 unless set; 10x4 is converged in both).
@@ -173,6 +174,8 @@ fn parse(task: &str, spec: &str) -> (SimParams, PhysicsTuning) {
             sim.prediction_distance = d.parse().unwrap();
         } else if let Some(n) = p.strip_prefix('z') {
             sim.stabilization_iterations = n.parse().unwrap();
+        } else if let Some(n) = p.strip_prefix('g') {
+            sim.pgs_iterations = n.parse().unwrap();
         } else {
             panic!("unknown part {p} of setting {spec}");
         }

@@ -106,6 +106,7 @@ pub const SIM: SimParams = SimParams {
     limit_frequency: RAPIER_LIMIT_FREQUENCY,
     implicit_limits: false,
     stabilization_iterations: crate::physics::RAPIER_STABILIZATION_ITERATIONS,
+    pgs_iterations: crate::physics::RAPIER_PGS_ITERATIONS,
     contact_frequency: None,
     contact_damping_ratio: None,
 };

@@ -108,6 +108,7 @@ pub const SIM: SimParams = SimParams {
     limit_frequency: 16.0,
     implicit_limits: false,
     stabilization_iterations: crate::physics::RAPIER_STABILIZATION_ITERATIONS,
+    pgs_iterations: crate::physics::RAPIER_PGS_ITERATIONS,
     contact_frequency: None,
     contact_damping_ratio: None,
 };
@@ -182,6 +183,8 @@ pub struct HumanoidOptions {
     pub implicit_limits: Option<bool>,
     /// Overrides [`SIM`]'s relax iterations per solver pass.
     pub stabilization_iterations: Option<usize>,
+    /// Overrides [`SIM`]'s Gauss–Seidel iterations per solver pass.
+    pub pgs_iterations: Option<usize>,
     /// Overrides [`SIM`]'s contact softness frequency, Hz.
     pub contact_frequency: Option<f32>,
     /// Overrides [`SIM`]'s contact softness damping ratio.
@@ -201,6 +204,7 @@ impl Default for HumanoidOptions {
             limit_frequency: None,
             implicit_limits: None,
             stabilization_iterations: None,
+            pgs_iterations: None,
             contact_frequency: None,
             contact_damping_ratio: None,
         }
@@ -217,6 +221,7 @@ impl HumanoidOptions {
             limit_frequency: self.limit_frequency,
             implicit_limits: self.implicit_limits,
             stabilization_iterations: self.stabilization_iterations,
+            pgs_iterations: self.pgs_iterations,
             contact_frequency: self.contact_frequency,
             contact_damping_ratio: self.contact_damping_ratio,
         }

@@ -765,6 +765,17 @@ mod tests {
                 )),
                 "{e}"
             );
+            // Rapier's Gauss–Seidel iterations per pass: at least 1, at most 64.
+            assert!(make_with(name, &table("pgs_iterations = 64")).is_ok());
+            for bad in [0, 65] {
+                let e = err(name, &format!("pgs_iterations = {bad}"));
+                assert!(
+                    e.contains(&format!(
+                        "`pgs_iterations` must be 1 to 64, got {bad} (the default is 1)"
+                    )),
+                    "{e}"
+                );
+            }
             // Contact softness: unset keeps rapier's own; out of range is refused by name.
             assert!(make_with(
                 name,
@@ -837,6 +848,9 @@ mod tests {
         // Rapier's relax iterations act once the feet touch the floor.
         assert_eq!(default, gait("stabilization_iterations = 1"));
         assert_ne!(default, gait("stabilization_iterations = 0"));
+        // So do rapier's Gauss–Seidel iterations per pass.
+        assert_eq!(default, gait("pgs_iterations = 1"));
+        assert_ne!(default, gait("pgs_iterations = 4"));
         // Contact softness, frequency and damping ratio each, once the feet touch the floor.
         assert_ne!(default, gait("contact_frequency = 8"));
         assert_ne!(default, gait("contact_damping_ratio = 1"));

@@ -89,6 +89,14 @@ pub struct SimParams {
     /// three: "The hopper's relax pass"). Absent in records older than it (so 1).
     #[serde(default = "rapier_stabilization_iterations")]
     pub stabilization_iterations: usize,
+    /// Rapier's `num_internal_pgs_iterations`: the contact and limit solve's Gauss–Seidel
+    /// iterations inside each solver pass, at the pass's positions (rapier's default 1). Unlike
+    /// a solver pass ([`SimParams::solver_iterations`]) it neither integrates nor updates the
+    /// articulations (forward kinematics, mass matrix and its factorisation), so it costs a
+    /// fraction of one; it converges the pass's impulses without shortening its step. Absent in
+    /// records older than it (so 1).
+    #[serde(default = "rapier_pgs_iterations")]
+    pub pgs_iterations: usize,
     /// Natural frequency of the contacts' softness, Hz, for contacts with the floor and between
     /// moving bodies alike; `None` keeps rapier's own (60 Hz against fixed bodies, 30 Hz
     /// between moving ones). Issue 32: MuJoCo's contacts are soft (`solref` 0.02 s, about
@@ -111,9 +119,16 @@ fn rapier_stabilization_iterations() -> usize {
     RAPIER_STABILIZATION_ITERATIONS
 }
 
+/// Rapier's own default of [`SimParams::pgs_iterations`].
+pub const RAPIER_PGS_ITERATIONS: usize = 1;
+
+fn rapier_pgs_iterations() -> usize {
+    RAPIER_PGS_ITERATIONS
+}
+
 impl SimParams {
     /// Each setting by name, as it reads (the shortest decimal that is the same `f32`).
-    pub fn fields(&self) -> [(&'static str, String); 9] {
+    pub fn fields(&self) -> [(&'static str, String); 10] {
         // Destructured, so that a new setting cannot be left out of the records.
         let SimParams {
             control_dt,
@@ -123,6 +138,7 @@ impl SimParams {
             limit_frequency,
             implicit_limits,
             stabilization_iterations,
+            pgs_iterations,
             contact_frequency,
             contact_damping_ratio,
         } = *self;
@@ -138,6 +154,7 @@ impl SimParams {
                 "stabilization_iterations",
                 stabilization_iterations.to_string(),
             ),
+            ("pgs_iterations", pgs_iterations.to_string()),
             ("contact_frequency", rapier(contact_frequency)),
             ("contact_damping_ratio", rapier(contact_damping_ratio)),
         ]
@@ -181,7 +198,8 @@ const LIMIT_DAMPING_RATIO: f32 = 1.0;
 
 /// A user's override of a robot's [`SimParams`] (the keys `substeps`, `solver_iterations`,
 /// `prediction_distance`, `limit_frequency`, `implicit_limits`, `stabilization_iterations`,
-/// `contact_frequency` and `contact_damping_ratio` of a run's `[env_options]`):
+/// `pgs_iterations`, `contact_frequency` and `contact_damping_ratio` of a run's
+/// `[env_options]`):
 /// trade speed for integration accuracy.
 /// Unset keys keep the robot's own choice, documented at each robot's `SIM`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Deserialize)]
@@ -199,6 +217,8 @@ pub struct PhysicsOptions {
     pub implicit_limits: Option<bool>,
     /// Rapier's relax iterations per solver pass ([`SimParams::stabilization_iterations`]).
     pub stabilization_iterations: Option<usize>,
+    /// Rapier's Gauss–Seidel iterations per solver pass ([`SimParams::pgs_iterations`]).
+    pub pgs_iterations: Option<usize>,
     /// The contacts' natural frequency, Hz ([`SimParams::contact_frequency`]).
     pub contact_frequency: Option<f32>,
     /// The contacts' damping ratio ([`SimParams::contact_damping_ratio`]).
@@ -288,6 +308,13 @@ impl PhysicsOptions {
                 0,
                 MAX_STABILIZATION_ITERATIONS,
             )?,
+            pgs_iterations: count(
+                "pgs_iterations",
+                self.pgs_iterations,
+                default.pgs_iterations,
+                1,
+                MAX_PGS_ITERATIONS,
+            )?,
             contact_frequency: optional(
                 "contact_frequency",
                 self.contact_frequency,
@@ -309,6 +336,9 @@ impl PhysicsOptions {
 /// The most of [`PhysicsOptions::stabilization_iterations`] (rapier's default is 1).
 pub const MAX_STABILIZATION_ITERATIONS: usize = 16;
 
+/// The most of [`PhysicsOptions::pgs_iterations`] (rapier's default is 1).
+pub const MAX_PGS_ITERATIONS: usize = 64;
+
 /// A new world: gravity −Z, the time step and solver settings of `p`.
 pub fn new_world(p: &SimParams) -> PhysicsWorld {
     let mut w = PhysicsWorld::new();
@@ -318,6 +348,7 @@ pub fn new_world(p: &SimParams) -> PhysicsWorld {
     w.integration_parameters.normalized_prediction_distance = p.prediction_distance;
     w.integration_parameters
         .num_internal_stabilization_iterations = p.stabilization_iterations;
+    w.integration_parameters.num_internal_pgs_iterations = p.pgs_iterations;
     let ip = &mut w.integration_parameters;
     for softness in [&mut ip.contact_softness, &mut ip.static_contact_softness] {
         if let Some(hz) = p.contact_frequency {
@@ -1328,6 +1359,7 @@ mod tests {
             limit_frequency: RAPIER_LIMIT_FREQUENCY,
             implicit_limits: false,
             stabilization_iterations: RAPIER_STABILIZATION_ITERATIONS,
+            pgs_iterations: RAPIER_PGS_ITERATIONS,
             contact_frequency: None,
             contact_damping_ratio: None,
         };
@@ -1413,6 +1445,7 @@ mod tests {
             limit_frequency: RAPIER_LIMIT_FREQUENCY,
             implicit_limits: false,
             stabilization_iterations: RAPIER_STABILIZATION_ITERATIONS,
+            pgs_iterations: RAPIER_PGS_ITERATIONS,
             contact_frequency: None,
             contact_damping_ratio: None,
         };
@@ -1522,6 +1555,7 @@ mod tests {
             limit_frequency: RAPIER_LIMIT_FREQUENCY,
             implicit_limits: false,
             stabilization_iterations: RAPIER_STABILIZATION_ITERATIONS,
+            pgs_iterations: RAPIER_PGS_ITERATIONS,
             contact_frequency: None,
             contact_damping_ratio: None,
         };

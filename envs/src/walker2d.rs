@@ -101,6 +101,7 @@ pub const SIM: SimParams = SimParams {
     limit_frequency: 16.0,
     implicit_limits: false,
     stabilization_iterations: 0,
+    pgs_iterations: crate::physics::RAPIER_PGS_ITERATIONS,
     contact_frequency: None,
     contact_damping_ratio: None,
 };
