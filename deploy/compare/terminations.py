@@ -1,10 +1,12 @@
-"""Why an ant's episodes end (issue 32, goal 2's ant at 30k env steps): uniform random actions on
-our rapier ant or on Gymnasium's Ant-v5, and for each episode whether it ended with the torso
-above the healthy range (z > 1 m: the robot bounced), below it (z < 0.2 m) or at the time limit.
-Both tasks' observations start with the torso's height, so the same code reads either.
+"""Why an ant's or a humanoid's episodes end (issue 32: goal 2's ant at 30k env steps, goal 1's
+learned checks): uniform random actions or a saved policy on our rapier robot or on Gymnasium's
+v5 task, and for each episode whether it ended with the torso above the healthy range (the ant's
+z > 1 m: the robot bounced), below it (the ant's z < 0.2 m, the humanoid's z < 1 m: it fell) or at
+the time limit. Every such task's observation starts with the torso's height, so the same code
+reads either engine.
 
-Usage: python ant_terminations.py ENV_ID [EPISODES] [MODEL.zip]   (ENV_ID: Ant-v5 or
-selkd/Ant-v0; selkd's needs the selkd package on the path). Reset seeds 0..EPISODES-1, actions
+Usage: python terminations.py ENV_ID [EPISODES] [MODEL.zip]   (ENV_ID: Ant-v5, selkd/Ant-v0,
+Humanoid-v5 or selkd/Humanoid-v0; selkd's need the selkd package on the path). Reset seeds 0..EPISODES-1, actions
 from numpy's default_rng(0), or a saved Stable-Baselines3 SAC policy's deterministic ones
 (sb3_sac.py with SB3_SAVE_DIR). Prints one line: the counts, the median (and mean) episode length and the
 median of each episode's highest torso, and the mean return ± its standard deviation over
@@ -20,6 +22,12 @@ import numpy as np
 from sb3_gait import env_options
 
 env_id = sys.argv[1]
+# Each task's healthy torso height, m (Gymnasium's v5 defaults, which ours follow).
+HEALTHY = {"Ant": (0.2, 1.0), "Humanoid": (1.0, 2.0)}
+task = next((t for t in HEALTHY if t in env_id), None)
+if task is None:
+    sys.exit(f"terminations: ENV_ID is an Ant or a Humanoid task (got {env_id})")
+low, high = HEALTHY[task]
 episodes = int(sys.argv[2]) if len(sys.argv) > 2 else 50
 if env_id.startswith("selkd/"):
     import selkd  # noqa: F401  (registers selkd/*)
@@ -33,7 +41,8 @@ if len(sys.argv) > 3:
     act = lambda obs: model.predict(obs, deterministic=True)[0]  # noqa: E731
 else:
     act = lambda obs: rng.uniform(-1.0, 1.0, env.action_space.shape)  # noqa: E731
-ends = {"above 1 m": 0, "below 0.2 m": 0, "other": 0, "time limit": 0}
+above, below = f"above {high:g} m", f"below {low:g} m"
+ends = {above: 0, below: 0, "other": 0, "time limit": 0}
 lengths, highest, returns = [], [], []
 for seed in range(episodes):
     obs, _ = env.reset(seed=seed)
@@ -43,7 +52,7 @@ for seed in range(episodes):
         total += reward
         steps, top, z = steps + 1, max(top, obs[0]), obs[0]
         if terminated:
-            ends["above 1 m" if z > 1.0 else "below 0.2 m" if z < 0.2 else "other"] += 1
+            ends[above if z > high else below if z < low else "other"] += 1
             break
         if truncated:
             ends["time limit"] += 1
