@@ -1350,6 +1350,27 @@ pub fn robot_scene(world: &PhysicsWorld, robot: &Articulation) -> crate::scene::
 mod tests {
     use super::*;
 
+    /// A checkpoint's env record written before `pgs_iterations` existed reads as rapier's 1,
+    /// what every robot had then: such a run resumes on this build with no difference to accept.
+    #[test]
+    fn records_older_than_pgs_iterations_read_as_rapier_default() {
+        use crate::{ant, halfcheetah, hopper, humanoid, walker2d};
+        for sim in [
+            hopper::SIM,
+            walker2d::SIM,
+            halfcheetah::SIM,
+            ant::SIM,
+            humanoid::SIM,
+        ] {
+            let mut old = serde_json::to_value(sim).unwrap();
+            assert_eq!(old["pgs_iterations"], 1);
+            old.as_object_mut().unwrap().remove("pgs_iterations");
+            let read: SimParams = serde_json::from_value(old).unwrap();
+            assert_eq!(read.pgs_iterations, 1);
+            assert_eq!(read.fields(), sim.fields());
+        }
+    }
+
     fn pendulum_world() -> (PhysicsWorld, Articulation) {
         let p = SimParams {
             control_dt: 0.01,
