@@ -42,7 +42,7 @@ HEADER = (
 def env_options():
     """SB3_ENV_OPTIONS (JSON) from the environment: keyword options to gym.make (ours take a run
     config's [env_options] keys). The one reader of it for every script here that takes it
-(sb3_sac.py, one_step_vs_mujoco.py, terminations.py)."""
+    (sb3_sac.py, one_step_vs_mujoco.py, terminations.py)."""
     return json.loads(os.environ.get("SB3_ENV_OPTIONS") or "{}")
 
 

@@ -10,8 +10,9 @@ Humanoid-v5 or selkd/Humanoid-v0; selkd's need the selkd package on the path). R
 0..EPISODES-1, actions from numpy's default_rng(0), or a saved Stable-Baselines3 SAC policy's
 deterministic ones (sb3_sac.py with SB3_SAVE_DIR). Prints one line: the counts, the median (and
 mean) episode length and the median of each episode's highest torso, and the mean return ± its
-standard deviation over episodes. SB3_ENV_OPTIONS='{"key": value}' (JSON) passes options to gym.make, as sb3_gait.py
-(ours: e.g. {"substeps": 50, "solver_iterations": 4} for goal 1's reference).
+standard deviation over episodes. SB3_ENV_OPTIONS='{"key": value}' (JSON) passes options to
+gym.make, as sb3_gait.py (ours: e.g. {"substeps": 50, "solver_iterations": 4} for goal 1's
+reference).
 """
 import json
 import sys
